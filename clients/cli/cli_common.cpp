@@ -1,0 +1,159 @@
+#include "cli_common.h"
+
+#include <spdlog/spdlog.h>
+#include <unistd.h>
+
+#include <fstream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+#include "arref/builtin.h"
+
+namespace arref::cli {
+
+int ExitCodeFor(const Status& status) {
+  switch (status.code()) {
+    case StatusCode::kOk: return kExitOk;
+    case StatusCode::kInvalidArgument:
+    case StatusCode::kNotFound:
+    case StatusCode::kIoError: return kExitBadInput;
+    case StatusCode::kFailedPrecondition:
+    case StatusCode::kResourceExhausted:
+    case StatusCode::kCancelled:
+    case StatusCode::kUnavailable: return kExitCannotRun;
+    case StatusCode::kInternal: return kExitInternal;
+  }
+  return kExitInternal;
+}
+
+int Fail(const Status& status) {
+  spdlog::error("{}", status.ToString());
+  return ExitCodeFor(status);
+}
+
+void AddRobotOptions(CLI::App& app, RobotArgs& args) {
+  app.add_option("--robot", args.urdf, "Robot URDF (default: the built-in KR5-like robot)");
+  app.add_option("--package-path", args.package_path,
+                 "Folder holding ROS packages for package:// URIs (repeatable; ROS_PACKAGE_PATH is also used)");
+  app.add_option("--joints", args.joints, "Joint values, name=rad,name=rad (unnamed joints: 0)");
+  app.add_flag("--collision", args.collision, "Use collision geometry instead of visual");
+}
+
+Result<RobotModel> LoadRobot(const RobotArgs& args) {
+  std::string urdf = args.urdf;
+  if (urdf.empty()) {
+    auto builtin = BuiltinRobotUrdf();
+    if (!builtin.ok()) return builtin.status();
+    urdf = *builtin;
+  }
+  RobotLoadOptions options;
+  options.package_path = args.package_path;
+  options.geometry = args.collision ? GeometryKind::kCollision : GeometryKind::kVisual;
+  return RobotModel::Load(urdf, options);
+}
+
+namespace {
+Result<std::vector<double>> ParseNumbers(const std::string& text, std::size_t count, const std::string& what) {
+  std::vector<double> values;
+  std::stringstream ss(text);
+  for (std::string item; std::getline(ss, item, ',');) {
+    try {
+      std::size_t used = 0;
+      values.push_back(std::stod(item, &used));
+      if (used != item.size()) throw std::invalid_argument(item);
+    } catch (const std::exception&) {
+      return Status::InvalidArgument(what + ": '" + item + "' is not a number");
+    }
+    if (!std::isfinite(values.back())) return Status::InvalidArgument(what + ": '" + item + "' is not finite");
+  }
+  if (values.size() != count)
+    return Status::InvalidArgument(what + ": expected " + std::to_string(count) + " comma-separated numbers, got " +
+                                   std::to_string(values.size()));
+  return values;
+}
+}  // namespace
+
+Result<JointValues> ParseJoints(const std::string& text) {
+  JointValues joints;
+  std::stringstream ss(text);
+  for (std::string item; std::getline(ss, item, ',');) {
+    if (item.empty()) continue;
+    const auto eq = item.find('=');
+    if (eq == std::string::npos || eq == 0)
+      return Status::InvalidArgument("--joints: '" + item + "' is not name=value");
+    auto value = ParseNumbers(item.substr(eq + 1), 1, "--joints " + item.substr(0, eq));
+    if (!value.ok()) return value.status();
+    joints[item.substr(0, eq)] = value->front();
+  }
+  return joints;
+}
+
+namespace {
+Result<Iso3> PoseFromNumbers(const std::vector<double>& n, FrameConvention frame) {
+  const Quat q(n[6], n[3], n[4], n[5]);
+  if (std::abs(q.norm() - 1.0) > 1e-3)
+    return Status::InvalidArgument("pose quaternion is not unit length (norm " + std::to_string(q.norm()) + ")");
+  return PoseToRos(Vec3(n[0], n[1], n[2]), q, frame);
+}
+}  // namespace
+
+Result<Iso3> ParsePose(const std::string& text, FrameConvention frame) {
+  auto v = ParseNumbers(text, 7, "pose x,y,z,qx,qy,qz,qw");
+  if (!v.ok()) return v.status();
+  return PoseFromNumbers(*v, frame);
+}
+
+nlohmann::json MatrixToJson(const Iso3& T) {
+  nlohmann::json j = nlohmann::json::array();
+  for (int r = 0; r < 4; ++r)
+    for (int c = 0; c < 4; ++c) j.push_back(T.matrix()(r, c));
+  return j;
+}
+
+Result<Iso3> MatrixFromJson(const nlohmann::json& j) {
+  if (!j.is_array() || j.size() != 16) return Status::InvalidArgument("a 4x4 matrix must be 16 numbers, row-major");
+  Iso3 T;
+  for (int i = 0; i < 16; ++i) {
+    if (!j[i].is_number()) return Status::InvalidArgument("matrix element " + std::to_string(i) + " is not a number");
+    T.matrix()(i / 4, i % 4) = j[i].get<double>();
+  }
+  return T;
+}
+
+nlohmann::json PoseToJson(const Iso3& T, FrameConvention frame) {
+  Vec3 p;
+  Quat q;
+  PoseFromRos(T, frame, &p, &q);
+  return {p.x(), p.y(), p.z(), q.x(), q.y(), q.z(), q.w()};
+}
+
+Result<Iso3> PoseFromJson(const nlohmann::json& j, FrameConvention frame) {
+  if (!j.is_array() || j.size() != 7) return Status::InvalidArgument("a pose must be [x,y,z,qx,qy,qz,qw]");
+  std::vector<double> n;
+  for (const auto& v : j) {
+    if (!v.is_number()) return Status::InvalidArgument("a pose element is not a number");
+    n.push_back(v.get<double>());
+  }
+  return PoseFromNumbers(n, frame);
+}
+
+Result<nlohmann::json> ReadJsonFile(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) return Status::NotFound("cannot open " + path);
+  try {
+    return nlohmann::json::parse(in);
+  } catch (const nlohmann::json::exception& e) {
+    return Status::IoError(path + " is not valid JSON: " + e.what());
+  }
+}
+
+Status WriteJsonFile(const nlohmann::json& j, const std::string& path) {
+  std::ofstream out(path);
+  if (!out) return Status::IoError("cannot write " + path);
+  out << j.dump(2) << "\n";
+  return out ? Status::Ok() : Status::IoError("error writing " + path);
+}
+
+bool StderrIsTerminal() { return isatty(STDERR_FILENO) != 0; }
+
+}  // namespace arref::cli

@@ -1,0 +1,194 @@
+// `arref register`: register a robot model to a mesh file, optionally scored against truth.
+#include <spdlog/spdlog.h>
+
+#include <cstdio>
+#include <iostream>
+#include <nlohmann/json.hpp>
+
+#include "arref/metrics.h"
+#include "arref/pipeline.h"
+#include "arref/spatial_mesh.h"
+#include "cli_common.h"
+#include "commands.h"
+
+namespace arref::cli {
+namespace {
+
+struct RegisterArgs {
+  RobotArgs robot;
+  std::string scene;
+  std::string seed;
+  int seed_index = 0;
+  std::string frame = "ros";
+  std::string truth;
+  std::string method = "pcl-icp";
+  RegistrationOptions options;
+  double mls_radius = 0;
+  std::string mls_upsampling = "none";
+  double mls_upsampling_radius = 0.01;
+  double mls_upsampling_step = 0.005;
+  int mls_order = 2;
+  bool json = false;
+};
+
+struct Inputs {
+  std::optional<nlohmann::json> truth;
+  JointValues joints;
+  Iso3 T_world_seed;
+  Iso3 T_world_base_true;
+};
+
+Result<Inputs> ReadInputs(const RegisterArgs& args, FrameConvention frame) {
+  Inputs in;
+  if (!args.truth.empty()) {
+    auto truth = ReadJsonFile(args.truth);
+    if (!truth.ok()) return truth.status().WithContext("--truth");
+    in.truth = std::move(*truth);
+    auto T = MatrixFromJson(in.truth->value("T_world_base", nlohmann::json()));
+    if (!T.ok()) return T.status().WithContext("--truth " + args.truth + ": T_world_base");
+    in.T_world_base_true = *T;
+  }
+  auto joints = ParseJoints(args.robot.joints);
+  if (!joints.ok()) return joints.status();
+  in.joints = *joints;
+  if (args.robot.joints.empty() && in.truth && in.truth->contains("joints"))  // the scene's own robot pose
+    in.joints = (*in.truth)["joints"].get<JointValues>();
+
+  if (!args.seed.empty()) {
+    auto seed = ParsePose(args.seed, frame);
+    if (!seed.ok()) return seed.status().WithContext("--seed");
+    in.T_world_seed = *seed;
+  } else if (in.truth && in.truth->contains("seeds")) {
+    const auto& seeds = (*in.truth)["seeds"];
+    if (args.seed_index < 0 || args.seed_index >= static_cast<int>(seeds.size()))
+      return Status::InvalidArgument("--seed-index " + std::to_string(args.seed_index) + ": the truth file has " +
+                                     std::to_string(seeds.size()) + " seeds");
+    auto truth_frame = ParseFrameConvention(in.truth->value("frame", "ros"));
+    if (!truth_frame.ok()) return truth_frame.status().WithContext("--truth frame");
+    auto seed = PoseFromJson(seeds[args.seed_index], *truth_frame);
+    if (!seed.ok()) return seed.status().WithContext("--truth seeds[" + std::to_string(args.seed_index) + "]");
+    in.T_world_seed = *seed;
+  } else {
+    return Status::InvalidArgument("no seed: pass --seed x,y,z,qx,qy,qz,qw or a --truth file with seeds");
+  }
+  return in;
+}
+
+nlohmann::json ReportJson(const RegistrationReport& r, FrameConvention frame) {
+  nlohmann::json j;
+  j["status"] = "OK";
+  j["method"] = r.method;
+  j["stages_run"] = r.stages_run;
+  j["T_world_base"] = MatrixToJson(r.T_world_base);
+  const nlohmann::json pose = PoseToJson(r.T_world_base, frame);
+  j["frame"] = FrameConventionName(frame);
+  j["position"] = {pose[0], pose[1], pose[2]};
+  j["orientation"] = {pose[3], pose[4], pose[5], pose[6]};
+  j["rms_m"] = r.rms_m;
+  j["inlier_fraction"] = r.inlier_fraction;
+  j["iterations"] = r.iterations;
+  j["converged"] = r.converged;
+  j["points"] = {{"scene_triangles", r.scene_triangles}, {"scene", r.scene_points}, {"model", r.model_points}};
+  nlohmann::json timings;
+  for (const auto& t : r.timings) timings[t.stage] = t.ms;
+  timings["total"] = r.total_ms();
+  j["timings_ms"] = timings;
+  return j;
+}
+
+void PrintHuman(const nlohmann::json& j) {
+  const auto& T = j["T_world_base"];
+  std::printf("T_world_base (internal frame, row-major):\n");
+  for (int r = 0; r < 4; ++r)
+    std::printf("  % .5f % .5f % .5f % .5f\n", T[4 * r].get<double>(), T[4 * r + 1].get<double>(),
+                T[4 * r + 2].get<double>(), T[4 * r + 3].get<double>());
+  std::printf("rms %.2f mm, inliers %.1f %%, %d iterations, %.0f ms\n", j["rms_m"].get<double>() * 1e3,
+              j["inlier_fraction"].get<double>() * 100, j["iterations"].get<int>(), j["timings_ms"]["total"].get<double>());
+  if (j.contains("add_m"))
+    std::printf("vs truth: ADD %.2f mm, translation %.2f mm, rotation %.2f deg\n", j["add_m"].get<double>() * 1e3,
+                j["translation_error_m"].get<double>() * 1e3, j["rotation_error_deg"].get<double>());
+}
+
+ProgressFn TerminalProgress() {
+  if (!StderrIsTerminal()) return {};
+  return [](std::string_view stage, double fraction) {
+    std::fprintf(stderr, "\r%-10.*s %3.0f %%%s", static_cast<int>(stage.size()), stage.data(), fraction * 100,
+                 fraction >= 1.0 ? "\n" : "");
+  };
+}
+
+int Run(const RegisterArgs& args) {
+  auto frame = ParseFrameConvention(args.frame);
+  if (!frame.ok()) return Fail(frame.status());
+  auto method = ParseMethod(args.method);
+  if (!method.ok()) return Fail(method.status());
+  RegistrationOptions options = args.options;
+  options.method = *method;
+  if (args.mls_radius > 0) {
+    auto upsampling = ParseMlsUpsampling(args.mls_upsampling);
+    if (!upsampling.ok()) return Fail(upsampling.status());
+    options.mls = MlsOptions{.search_radius_m = args.mls_radius, .polynomial_order = args.mls_order,
+                             .upsampling = *upsampling, .upsampling_radius_m = args.mls_upsampling_radius,
+                             .upsampling_step_m = args.mls_upsampling_step};
+  }
+  auto inputs = ReadInputs(args, *frame);
+  if (!inputs.ok()) return Fail(inputs.status());
+  auto robot = LoadRobot(args.robot);
+  if (!robot.ok()) return Fail(robot.status());
+  auto model = SampleRobot(*robot, inputs->joints, options.model_samples, options.sample_seed);
+  if (!model.ok()) return Fail(model.status());
+  auto scene = LoadMeshFile(args.scene);
+  if (!scene.ok()) return Fail(scene.status().WithContext("--scene"));
+  MeshToRos(*scene, *frame);
+
+  auto report = RegisterScene(*model, *scene, inputs->T_world_seed, options, TerminalProgress());
+  if (!report.ok()) return Fail(report.status());
+  nlohmann::json j = ReportJson(*report, *frame);
+  if (inputs->truth) {
+    const PoseError e = ComparePoses(report->T_world_base, inputs->T_world_base_true, model->points);
+    j["translation_error_m"] = e.translation_m;
+    j["rotation_error_deg"] = e.rotation_deg;
+    j["add_m"] = e.add_m;
+  }
+  if (args.json)
+    std::cout << j.dump(2) << std::endl;
+  else
+    PrintHuman(j);
+  return kExitOk;
+}
+
+}  // namespace
+
+void AddRegisterCommand(CLI::App& app, int* exit_code) {
+  auto args = std::make_shared<RegisterArgs>();
+  CLI::App* cmd = app.add_subcommand("register", "Register a robot model to a headset mesh");
+  AddRobotOptions(*cmd, args->robot);
+  cmd->add_option("--scene", args->scene, "Headset mesh (PLY, OBJ or STL)")->required();
+  cmd->add_option("--seed", args->seed, "Seed pose x,y,z,qx,qy,qz,qw (default: a seed from --truth)");
+  cmd->add_option("--seed-index", args->seed_index, "Which of the truth file's seeds to use")->capture_default_str();
+  cmd->add_option("--frame", args->frame, "Convention of seed, mesh and output: ros or unity")
+      ->check(CLI::IsMember({"ros", "unity"}))->capture_default_str();
+  cmd->add_option("--truth", args->truth, "Ground truth JSON (from arref simulate): adds the true error");
+  cmd->add_option("--method", args->method, "Registration method: pcl-icp, pcl-icp-plane")->capture_default_str();
+  RegistrationOptions& o = args->options;
+  cmd->add_option("--crop-radius", o.crop_radius_m, "Crop the scene to this radius around the seed, m")->capture_default_str();
+  cmd->add_option("--samples", o.scene_samples, "Scene surface samples")->capture_default_str();
+  cmd->add_option("--model-samples", o.model_samples, "Robot surface samples")->capture_default_str();
+  cmd->add_option("--voxel", o.voxel_leaf_m, "Voxel downsampling leaf for the scene sample, m (0: off)");
+  cmd->add_option("--max-correspondence", o.icp.max_correspondence_m, "ICP max correspondence distance, m")->capture_default_str();
+  cmd->add_option("--max-iterations", o.icp.max_iterations, "ICP max iterations")->capture_default_str();
+  cmd->add_option("--transformation-epsilon", o.icp.transformation_epsilon, "ICP transformation epsilon");
+  cmd->add_option("--fitness-epsilon", o.icp.euclidean_fitness_epsilon, "ICP Euclidean fitness epsilon");
+  cmd->add_option("--inlier-threshold", o.inlier_threshold_m, "Distance counted as inlier, m")->capture_default_str();
+  cmd->add_option("--sample-seed", o.sample_seed, "Seed of the surface sampling")->capture_default_str();
+  cmd->add_option("--mls", args->mls_radius, "Moving Least Squares search radius, m (0: off)");
+  cmd->add_option("--mls-order", args->mls_order, "MLS polynomial order");
+  cmd->add_option("--mls-upsampling", args->mls_upsampling,
+                  "none, sample-local-plane, random-uniform-density, voxel-grid-dilation");
+  cmd->add_option("--mls-upsampling-radius", args->mls_upsampling_radius, "MLS upsampling radius, m");
+  cmd->add_option("--mls-upsampling-step", args->mls_upsampling_step, "MLS upsampling step, m");
+  cmd->add_flag("--json", args->json, "Print the result as JSON on stdout");
+  cmd->callback([args, exit_code] { *exit_code = Run(*args); });
+}
+
+}  // namespace arref::cli

@@ -1,0 +1,99 @@
+// `arref simulate`: a simulated robot cell with ground truth, as a mesh file and a truth JSON.
+#include <spdlog/spdlog.h>
+
+#include <nlohmann/json.hpp>
+
+#include "arref/sim/cell_simulator.h"
+#include "cli_common.h"
+#include "commands.h"
+
+namespace arref::cli {
+namespace {
+
+struct SimulateArgs {
+  RobotArgs robot;
+  std::string mesh_out = "scene.ply";
+  std::string truth_out = "truth.json";
+  std::string preset = "small";
+  std::string frame = "ros";
+  std::uint64_t rng_seed = 1;
+  int seeds = 10;
+  double table_gap = -1;
+  bool no_table = false;
+  bool no_walls = false;
+  int clutter = -1;
+  bool second_robot = false;
+  double pedestal = 0;
+};
+
+int Run(const SimulateArgs& args) {
+  auto frame = ParseFrameConvention(args.frame);
+  if (!frame.ok()) return Fail(frame.status());
+  auto robot = LoadRobot(args.robot);
+  if (!robot.ok()) return Fail(robot.status());
+  auto joints = ParseJoints(args.robot.joints);
+  if (!joints.ok()) return Fail(joints.status());
+
+  sim::SimOptions options = args.preset == "big" ? sim::BigPreset() : sim::SmallPreset();
+  options.cell.joints = *joints;
+  options.cell.table = !args.no_table;
+  options.cell.walls = !args.no_walls;
+  if (args.table_gap >= 0) options.cell.table_gap_m = args.table_gap;
+  if (args.clutter >= 0) options.cell.clutter_boxes = args.clutter;
+  options.cell.second_robot = args.second_robot;
+  options.cell.pedestal_height_m = args.pedestal;
+  options.seed_count = args.seeds;
+
+  auto cell = sim::SimulateCell(*robot, options, args.rng_seed);
+  if (!cell.ok()) return Fail(cell.status().WithContext("simulating the cell"));
+
+  SpatialMesh map;
+  for (auto& s : cell->surfaces)
+    if (auto st = map.Upsert(s); !st.ok()) return Fail(st.WithContext("simulator produced a bad surface"));
+  TriangleMesh mesh = map.MergedWorld();
+  MeshFromRos(mesh, *frame);
+  if (auto st = SaveMeshFile(mesh, args.mesh_out); !st.ok()) return Fail(st);
+
+  nlohmann::json truth;
+  truth["frame"] = args.frame;
+  truth["robot"] = robot->name();
+  truth["preset"] = args.preset;
+  truth["rng_seed"] = args.rng_seed;
+  truth["T_world_base"] = MatrixToJson(cell->T_world_base);
+  truth["base_pose"] = PoseToJson(cell->T_world_base, *frame);
+  truth["joints"] = cell->joints;
+  truth["seeds"] = nlohmann::json::array();
+  for (const auto& seed : cell->seeds) truth["seeds"].push_back(PoseToJson(seed, *frame));
+  truth["voxel_m"] = cell->voxel_m;
+  truth["surfaces"] = cell->surfaces.size();
+  truth["triangles"] = mesh.triangles.size();
+  if (auto st = WriteJsonFile(truth, args.truth_out); !st.ok()) return Fail(st);
+  spdlog::info("wrote {} ({} triangles in {} surfaces, voxel {:.3f} m) and {}", args.mesh_out, mesh.triangles.size(),
+               cell->surfaces.size(), cell->voxel_m, args.truth_out);
+  return kExitOk;
+}
+
+}  // namespace
+
+void AddSimulateCommand(CLI::App& app, int* exit_code) {
+  auto args = std::make_shared<SimulateArgs>();
+  CLI::App* cmd = app.add_subcommand("simulate", "Simulate a robot cell as a headset maps it, with ground truth");
+  AddRobotOptions(*cmd, args->robot);
+  cmd->add_option("--mesh-out", args->mesh_out, "Scene mesh to write (.ply, .stl or .obj)")->capture_default_str();
+  cmd->add_option("--truth-out", args->truth_out, "Ground truth JSON to write")->capture_default_str();
+  cmd->add_option("--preset", args->preset, "small (1,000 triangles/m^3) or big (1,240,000)")
+      ->check(CLI::IsMember({"small", "big"}))->capture_default_str();
+  cmd->add_option("--frame", args->frame, "Convention of the written mesh and poses: ros or unity")
+      ->check(CLI::IsMember({"ros", "unity"}))->capture_default_str();
+  cmd->add_option("--rng-seed", args->rng_seed, "Random seed (same seed, same scene)")->capture_default_str();
+  cmd->add_option("--seeds", args->seeds, "Number of user-like seed poses to draw")->check(CLI::Range(0, 100000));
+  cmd->add_option("--table-gap", args->table_gap, "Table edge to robot base, m")->check(CLI::Range(0.0, 5.0));
+  cmd->add_flag("--no-table", args->no_table, "No table in the cell");
+  cmd->add_flag("--no-walls", args->no_walls, "No walls in the cell");
+  cmd->add_option("--clutter", args->clutter, "Number of clutter boxes")->check(CLI::Range(0, 200));
+  cmd->add_flag("--second-robot", args->second_robot, "Place a second robot nearby");
+  cmd->add_option("--pedestal", args->pedestal, "Pedestal height under the robot, m")->check(CLI::Range(0.0, 3.0));
+  cmd->callback([args, exit_code] { *exit_code = Run(*args); });
+}
+
+}  // namespace arref::cli

@@ -1,0 +1,55 @@
+// Plain geometry containers shared by every part of arref. Points are float (memory),
+// transforms double (accuracy). Transform names follow T_a_b: maps frame-b coordinates into a.
+#pragma once
+
+#include <Eigen/Geometry>
+#include <array>
+#include <limits>
+#include <cstdint>
+#include <vector>
+
+namespace arref {
+
+using Vec3f = Eigen::Vector3f;
+using Vec3 = Eigen::Vector3d;
+using Iso3 = Eigen::Isometry3d;
+using Quat = Eigen::Quaterniond;
+using Triangle = std::array<std::uint32_t, 3>;
+
+// Counter-clockwise winding seen from outside (right-handed frame) gives the outward normal.
+struct TriangleMesh {
+  std::vector<Vec3f> vertices;
+  std::vector<Triangle> triangles;
+
+  bool empty() const { return triangles.empty(); }
+  void Append(const TriangleMesh& other, const Iso3& T_this_other = Iso3::Identity());
+  void Transform(const Iso3& T_new_old);
+  double SurfaceArea() const;
+};
+
+// Points with optional per-point normals (normals empty, or same size as points).
+struct PointCloud {
+  std::vector<Vec3f> points;
+  std::vector<Vec3f> normals;
+
+  std::size_t size() const { return points.size(); }
+  bool empty() const { return points.empty(); }
+  bool has_normals() const { return !normals.empty() && normals.size() == points.size(); }
+  void Transform(const Iso3& T_new_old);
+};
+
+// Axis-aligned bounding box of a point set; empty set gives min > max.
+struct Aabb {
+  Vec3f min = Vec3f::Constant(std::numeric_limits<float>::max());
+  Vec3f max = Vec3f::Constant(std::numeric_limits<float>::lowest());
+  void Extend(const Vec3f& p) { min = min.cwiseMin(p); max = max.cwiseMax(p); }
+  bool valid() const { return (min.array() <= max.array()).all(); }
+};
+Aabb BoundsOf(const std::vector<Vec3f>& points);
+
+// Builds an isometry from translation + unit quaternion.
+Iso3 MakePose(const Vec3& position, const Quat& orientation);
+// Rotation about +z (gravity up) by yaw radians, then translation.
+Iso3 MakeYawPose(double x, double y, double z, double yaw);
+
+}  // namespace arref

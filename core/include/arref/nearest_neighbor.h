@@ -1,0 +1,29 @@
+// Nearest-neighbour queries over a fixed point set (a nanoflann k-d tree behind a small API).
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <vector>
+
+#include "arref/geometry.h"
+
+namespace arref {
+
+class PointIndex {
+ public:
+  explicit PointIndex(std::vector<Vec3f> points);
+  PointIndex(PointIndex&&) noexcept;
+  PointIndex& operator=(PointIndex&&) noexcept;
+  ~PointIndex();
+
+  std::size_t size() const;
+  const std::vector<Vec3f>& points() const;
+  // False only for an empty index. sq_dist is the squared Euclidean distance.
+  bool Nearest(const Vec3f& query, std::uint32_t* index, float* sq_dist) const;
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace arref

@@ -1,0 +1,32 @@
+// Surface sampling and point-cloud resampling.
+#pragma once
+
+#include <cstdint>
+
+#include "arref/geometry.h"
+#include "arref/status.h"
+
+namespace arref {
+
+// n points uniform by area over the mesh surface, with the face normal of each point's
+// triangle. Deterministic for a given seed. Empty mesh or n == 0 gives an empty cloud.
+PointCloud SampleSurface(const TriangleMesh& mesh, std::size_t n, std::uint64_t seed);
+
+// One point per occupied voxel (the centroid of its points; normals averaged).
+PointCloud VoxelDownsample(const PointCloud& cloud, double leaf_m);
+
+// Moving Least Squares (PCL MovingLeastSquares), the paper's optional resampling step.
+struct MlsOptions {
+  double search_radius_m = 0.05;
+  int polynomial_order = 2;
+  enum class Upsampling { kNone, kSampleLocalPlane, kRandomUniformDensity, kVoxelGridDilation };
+  Upsampling upsampling = Upsampling::kNone;
+  double upsampling_radius_m = 0.01;  // kSampleLocalPlane
+  double upsampling_step_m = 0.005;   // kSampleLocalPlane
+  int point_density = 20;             // kRandomUniformDensity
+  double dilation_voxel_m = 0.01;     // kVoxelGridDilation
+};
+Result<MlsOptions::Upsampling> ParseMlsUpsampling(const std::string& name);
+Result<PointCloud> MlsResample(const PointCloud& cloud, const MlsOptions& options);
+
+}  // namespace arref

@@ -1,0 +1,46 @@
+// The headset's spatial map: surfaces with ids, each with its own transform to world.
+#pragma once
+
+#include <cstdint>
+#include <map>
+#include <string>
+
+#include "arref/geometry.h"
+#include "arref/status.h"
+
+namespace arref {
+
+struct Surface {
+  std::uint64_t id = 0;
+  TriangleMesh mesh;                     // vertices in the surface's own frame (internal convention)
+  Iso3 T_world_surface = Iso3::Identity();
+  double timestamp_s = 0.0;
+};
+
+// Rejects non-finite vertices or transform, indices out of range, empty surfaces and
+// surfaces whose triangles are all degenerate. The message names the surface and element.
+Status ValidateSurface(const Surface& surface);
+
+// Latest version of each surface, by id (an update replaces the old one, as on a HoloLens).
+class SpatialMesh {
+ public:
+  Status Upsert(Surface surface);  // validated first; a bad surface leaves the map unchanged
+  bool Remove(std::uint64_t id);
+  void Clear() { surfaces_.clear(); }
+  std::size_t size() const { return surfaces_.size(); }
+  std::size_t vertex_count() const;
+  const std::map<std::uint64_t, Surface>& surfaces() const { return surfaces_; }
+  // All surfaces in world coordinates, as one mesh.
+  TriangleMesh MergedWorld() const;
+
+ private:
+  std::map<std::uint64_t, Surface> surfaces_;
+};
+
+// Keeps triangles with at least one vertex within radius of center (drops unused vertices).
+TriangleMesh CropToSphere(const TriangleMesh& mesh, const Vec3& center, double radius);
+
+// Drops triangles with (near) zero area; the spatial mapper emits some.
+TriangleMesh RemoveDegenerateTriangles(const TriangleMesh& mesh, double min_area = 1e-12);
+
+}  // namespace arref

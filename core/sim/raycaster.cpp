@@ -1,0 +1,100 @@
+#include "raycaster.h"
+
+#include <embree3/rtcore.h>
+#include <spdlog/spdlog.h>
+#include <tbb/parallel_for.h>
+
+#include <cmath>
+#include <cstring>
+#include <numbers>
+#include <string>
+
+namespace arref::sim {
+
+PinholeCamera PinholeCamera::FromFov(int width, int height, double fov_horizontal_deg) {
+  PinholeCamera c;
+  c.width = width;
+  c.height = height;
+  c.focal_px = 0.5 * width / std::tan(0.5 * fov_horizontal_deg * std::numbers::pi / 180.0);
+  return c;
+}
+
+Vec3 PinholeCamera::RayDirection(int u, int v) const {
+  return Vec3((u + 0.5 - cx()) / focal_px, (v + 0.5 - cy()) / focal_px, 1.0).normalized();
+}
+
+int PinholeCamera::PixelOf(const Vec3& p) const {
+  if (p.z() <= 1e-6) return -1;
+  const double u = focal_px * p.x() / p.z() + cx();
+  const double v = focal_px * p.y() / p.z() + cy();
+  if (!(u >= 0 && v >= 0 && u < width && v < height)) return -1;
+  return static_cast<int>(v) * width + static_cast<int>(u);
+}
+
+struct RayCaster::Impl {
+  RTCDevice device = nullptr;
+  RTCScene scene = nullptr;
+  ~Impl() {
+    if (scene) rtcReleaseScene(scene);
+    if (device) rtcReleaseDevice(device);
+  }
+};
+
+RayCaster::RayCaster(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+RayCaster::RayCaster(RayCaster&&) noexcept = default;
+RayCaster& RayCaster::operator=(RayCaster&&) noexcept = default;
+RayCaster::~RayCaster() = default;
+
+Result<RayCaster> RayCaster::Create(const TriangleMesh& mesh) {
+  if (mesh.empty()) return Status::FailedPrecondition("ray casting: the scene has no triangles");
+  auto impl = std::make_unique<Impl>();
+  impl->device = rtcNewDevice(nullptr);
+  if (!impl->device) return Status::Internal("ray casting: cannot create an Embree device");
+  impl->scene = rtcNewScene(impl->device);
+  RTCGeometry geom = rtcNewGeometry(impl->device, RTC_GEOMETRY_TYPE_TRIANGLE);
+  auto* vb = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                                         3 * sizeof(float), mesh.vertices.size()));
+  auto* ib = static_cast<unsigned*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                                                            3 * sizeof(unsigned), mesh.triangles.size()));
+  for (std::size_t i = 0; i < mesh.vertices.size(); ++i) std::memcpy(vb + 3 * i, mesh.vertices[i].data(), 12);
+  for (std::size_t i = 0; i < mesh.triangles.size(); ++i) std::memcpy(ib + 3 * i, mesh.triangles[i].data(), 12);
+  rtcCommitGeometry(geom);
+  rtcAttachGeometry(impl->scene, geom);
+  rtcReleaseGeometry(geom);
+  rtcCommitScene(impl->scene);
+  if (const RTCError err = rtcGetDeviceError(impl->device); err != RTC_ERROR_NONE)
+    return Status::Internal("ray casting: Embree error " + std::to_string(static_cast<int>(err)) +
+                            " building a scene of " + std::to_string(mesh.triangles.size()) + " triangles");
+  spdlog::debug("sim: Embree scene with {} triangles", mesh.triangles.size());
+  return RayCaster(std::move(impl));
+}
+
+RangeImage RayCaster::Render(const PinholeCamera& camera, const Iso3& T_scene_camera, double max_range_m) const {
+  RangeImage range(static_cast<std::size_t>(camera.width) * camera.height, 0.0f);
+  const Eigen::Matrix3d R = T_scene_camera.linear();
+  const Vec3 origin = T_scene_camera.translation();
+  tbb::parallel_for(0, camera.height, [&](int v) {
+    RTCIntersectContext context;
+    rtcInitIntersectContext(&context);
+    for (int u = 0; u < camera.width; ++u) {
+      const Vec3 dir = R * camera.RayDirection(u, v);
+      RTCRayHit rh{};
+      rh.ray.org_x = static_cast<float>(origin.x());
+      rh.ray.org_y = static_cast<float>(origin.y());
+      rh.ray.org_z = static_cast<float>(origin.z());
+      rh.ray.dir_x = static_cast<float>(dir.x());
+      rh.ray.dir_y = static_cast<float>(dir.y());
+      rh.ray.dir_z = static_cast<float>(dir.z());
+      rh.ray.tnear = 0.0f;
+      rh.ray.tfar = static_cast<float>(max_range_m);
+      rh.ray.mask = static_cast<unsigned>(-1);  // Embree skips geometry whose mask bits miss the ray's
+      rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
+      rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+      rtcIntersect1(impl_->scene, &context, &rh);
+      if (rh.hit.geomID != RTC_INVALID_GEOMETRY_ID) range[static_cast<std::size_t>(v) * camera.width + u] = rh.ray.tfar;
+    }
+  });
+  return range;
+}
+
+}  // namespace arref::sim

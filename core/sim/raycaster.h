@@ -1,0 +1,46 @@
+// Depth images of a triangle scene, ray cast with Embree (kept out of every other header).
+#pragma once
+
+#include <memory>
+#include <vector>
+
+#include "arref/geometry.h"
+#include "arref/status.h"
+
+namespace arref::sim {
+
+// Pinhole camera in the optical convention: z forward, x right, y down. Pixel (u, v) covers
+// [u, u+1) x [v, v+1); its ray goes through the pixel centre.
+struct PinholeCamera {
+  int width = 0;
+  int height = 0;
+  double focal_px = 0.0;  // square pixels
+
+  static PinholeCamera FromFov(int width, int height, double fov_horizontal_deg);
+  double cx() const { return 0.5 * width; }
+  double cy() const { return 0.5 * height; }
+  Vec3 RayDirection(int u, int v) const;  // unit, camera frame
+  // Pixel index hit by a camera-frame point, or -1 when behind the camera or off the image.
+  int PixelOf(const Vec3& p_camera) const;
+};
+
+// Range along each pixel's ray (row-major), 0 where nothing is hit within max_range.
+using RangeImage = std::vector<float>;
+
+class RayCaster {
+ public:
+  // The scene is copied into Embree's buffers; the mesh may be dropped afterwards.
+  static Result<RayCaster> Create(const TriangleMesh& scene);
+  RayCaster(RayCaster&&) noexcept;
+  RayCaster& operator=(RayCaster&&) noexcept;
+  ~RayCaster();
+
+  RangeImage Render(const PinholeCamera& camera, const Iso3& T_scene_camera, double max_range_m) const;
+
+ private:
+  struct Impl;
+  explicit RayCaster(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace arref::sim

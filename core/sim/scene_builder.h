@@ -1,0 +1,37 @@
+// Builds the geometry of a simulated robot cell (robot, floor, walls, table, clutter) in the
+// cell frame: z up, floor at z = 0, robot base at (0, 0, pedestal height).
+#pragma once
+
+#include <random>
+#include <vector>
+
+#include "arref/geometry.h"
+#include "arref/robot_model.h"
+#include "arref/sim/cell_simulator.h"
+#include "arref/status.h"
+
+namespace arref::sim {
+
+struct CellScene {
+  TriangleMesh mesh;            // everything, cell frame
+  Iso3 T_cell_base = Iso3::Identity();
+  JointValues joints;           // complete joint values of the main robot
+  std::vector<Prop> props;
+  Aabb footprint_cell;          // horizontal extent of the robot's base, cell frame
+};
+
+// A box with outward, counter-clockwise faces, rotated by yaw about z around its centre.
+TriangleMesh MakeBox(const Vec3& center, const Vec3& size, double yaw = 0.0);
+
+// Bounds of a box built by MakeBox (axis-aligned, so a yawed box gets its enclosing box).
+Aabb BoxBounds(const Vec3& center, const Vec3& size, double yaw = 0.0);
+
+// Horizontal gap between two boxes' footprints (0 when they overlap in x-y).
+double HorizontalGap(const Aabb& a, const Aabb& b);
+
+// Poses the robot and lays out the props. Random choices (clutter, second robot) use rng.
+// Walls are placed beyond the walking path of scan.
+Result<CellScene> BuildCellScene(const RobotModel& robot, const CellOptions& options, const ScanOptions& scan,
+                                 std::mt19937_64& rng);
+
+}  // namespace arref::sim

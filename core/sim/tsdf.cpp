@@ -1,0 +1,239 @@
+#include "tsdf.h"
+
+#include <spdlog/spdlog.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <cmath>
+#include <string>
+
+namespace arref::sim {
+namespace {
+
+constexpr int B = TsdfVolume::kBlock;
+constexpr int kVoxelsPerBlock = B * B * B;
+constexpr int kKeyBias = 1 << 20;
+// Caps the weight so that old observations do not freeze the surface forever.
+constexpr float kMaxWeight = 64.0f;
+
+int LocalIndex(int x, int y, int z) { return x + B * (y + B * z); }
+
+int FloorDiv(int a, int b) { return a >= 0 ? a / b : -((-a + b - 1) / b); }
+
+// Moves local coordinates in [-1, B] into the neighbour block that holds them; returns its slot.
+int NeighbourSlot(int& x, int& y, int& z) {
+  const int dx = x < 0 ? -1 : (x >= B ? 1 : 0);
+  const int dy = y < 0 ? -1 : (y >= B ? 1 : 0);
+  const int dz = z < 0 ? -1 : (z >= B ? 1 : 0);
+  x -= dx * B;
+  y -= dy * B;
+  z -= dz * B;
+  return (dx + 1) + 3 * (dy + 1) + 9 * (dz + 1);
+}
+
+// Splits the quad along its shorter diagonal: flatter triangles, same winding.
+void EmitQuad(const std::array<std::uint32_t, 4>& q, const std::vector<Vec3f>& vertices,
+              std::vector<Triangle>& out) {
+  const auto& p = vertices;
+  const bool diag02 = (p[q[0]] - p[q[2]]).squaredNorm() <= (p[q[1]] - p[q[3]]).squaredNorm();
+  const Triangle t1 = diag02 ? Triangle{q[0], q[1], q[2]} : Triangle{q[0], q[1], q[3]};
+  const Triangle t2 = diag02 ? Triangle{q[0], q[2], q[3]} : Triangle{q[1], q[2], q[3]};
+  for (const Triangle& t : {t1, t2})
+    if ((p[t[1]] - p[t[0]]).cross(p[t[2]] - p[t[0]]).squaredNorm() > 1e-20f) out.push_back(t);
+}
+
+}  // namespace
+
+TsdfVolume::TsdfVolume(const TsdfOptions& options) : options_(options) {}
+
+TsdfVolume::Key TsdfVolume::KeyOf(const Eigen::Vector3i& b) {
+  const auto k = [](int v) { return static_cast<std::uint64_t>(v + kKeyBias) & 0x1FFFFF; };
+  return (k(b.x()) << 42) | (k(b.y()) << 21) | k(b.z());
+}
+
+Eigen::Vector3i TsdfVolume::BlockOf(const Vec3& p) const {
+  Eigen::Vector3i b;
+  for (int a = 0; a < 3; ++a) b[a] = FloorDiv(static_cast<int>(std::lround(p[a] / options_.voxel_m)), B);
+  return b;
+}
+
+Status TsdfVolume::Integrate(const PinholeCamera& camera, const Iso3& T_volume_camera, const RangeImage& range) {
+  ARREF_RETURN_IF_ERROR(AllocateBand(camera, T_volume_camera, range));
+  const Iso3 T_camera_volume = T_volume_camera.inverse();
+  // Each block is updated by one task, so the result does not depend on scheduling.
+  tbb::parallel_for(std::size_t{0}, blocks_.size(),
+                    [&](std::size_t i) { UpdateBlock(blocks_[i], camera, T_camera_volume, range); });
+  return Status::Ok();
+}
+
+// Allocates the blocks within the truncation band around every measured point. Collected per
+// row in parallel, inserted in row order so block order (and the mesh) is deterministic.
+Status TsdfVolume::AllocateBand(const PinholeCamera& camera, const Iso3& T_volume_camera, const RangeImage& range) {
+  const double trunc = options_.truncation_m;
+  const double block_m = B * options_.voxel_m;
+  const double step = std::min(0.5 * block_m, trunc);
+  const double keep_radius = options_.crop_radius_m + 0.87 * block_m;
+  std::vector<std::vector<Eigen::Vector3i>> rows(camera.height);
+  tbb::parallel_for(0, camera.height, [&](int v) {
+    Key last = ~Key{0};
+    for (int u = 0; u < camera.width; ++u) {
+      const float r = range[static_cast<std::size_t>(v) * camera.width + u];
+      if (r <= 0) continue;
+      const Vec3 dir = T_volume_camera.linear() * camera.RayDirection(u, v);
+      for (double t = r - trunc; t <= r + trunc + 1e-9; t += step) {
+        const Vec3 p = T_volume_camera.translation() + t * dir;
+        if ((p - options_.crop_center).norm() > keep_radius) continue;
+        const Eigen::Vector3i b = BlockOf(p);
+        if (const Key k = KeyOf(b); k != last) {
+          rows[v].push_back(b);
+          last = k;
+        }
+      }
+    }
+  });
+  for (const auto& row : rows)
+    for (const Eigen::Vector3i& b : row) {
+      if (index_.count(KeyOf(b))) continue;
+      if (blocks_.size() >= options_.max_blocks)
+        return Status::ResourceExhausted("TSDF fusion needs more than " + std::to_string(options_.max_blocks) +
+                                         " voxel blocks: fusion.voxel_m is too small for the scene");
+      index_.emplace(KeyOf(b), static_cast<int>(blocks_.size()));
+      blocks_.push_back(Block{b, std::vector<Voxel>(kVoxelsPerBlock)});
+    }
+  return Status::Ok();
+}
+
+void TsdfVolume::UpdateBlock(Block& block, const PinholeCamera& camera, const Iso3& T_camera_volume,
+                             const RangeImage& range) const {
+  const double v = options_.voxel_m;
+  const double trunc = options_.truncation_m;
+  const Vec3 origin = T_camera_volume * (block.index.cast<double>() * (B * v));
+  const Eigen::Matrix3d step = T_camera_volume.linear() * v;
+  const Vec3 center = origin + step * Vec3::Constant(0.5 * (B - 1));
+  if (center.z() < -0.87 * B * v) return;  // wholly behind the camera
+  for (int z = 0; z < B; ++z)
+    for (int y = 0; y < B; ++y)
+      for (int x = 0; x < B; ++x) {
+        const Vec3 p = origin + step * Vec3(x, y, z);
+        const int pixel = camera.PixelOf(p);
+        if (pixel < 0 || range[pixel] <= 0) continue;
+        const double sdf = range[pixel] - p.norm();
+        if (sdf < -trunc) continue;  // hidden behind the measured surface: no information
+        Voxel& vox = block.voxels[LocalIndex(x, y, z)];
+        const float d = static_cast<float>(std::min(1.0, sdf / trunc));
+        vox.d = (vox.d * vox.w + d) / (vox.w + 1.0f);
+        vox.w = std::min(vox.w + 1.0f, kMaxWeight);
+      }
+}
+
+std::vector<TsdfVolume::NeighbourTable> TsdfVolume::Neighbours() const {
+  std::vector<NeighbourTable> table(blocks_.size());
+  for (std::size_t i = 0; i < blocks_.size(); ++i)
+    for (int dz = -1; dz <= 1; ++dz)
+      for (int dy = -1; dy <= 1; ++dy)
+        for (int dx = -1; dx <= 1; ++dx) {
+          const auto it = index_.find(KeyOf(blocks_[i].index + Eigen::Vector3i(dx, dy, dz)));
+          table[i][(dx + 1) + 3 * (dy + 1) + 9 * (dz + 1)] = it == index_.end() ? -1 : it->second;
+        }
+  return table;
+}
+
+const TsdfVolume::Voxel* TsdfVolume::VoxelAt(const NeighbourTable& nb, int x, int y, int z) const {
+  const int b = nb[NeighbourSlot(x, y, z)];
+  return b < 0 ? nullptr : &blocks_[b].voxels[LocalIndex(x, y, z)];
+}
+
+// One vertex per cell (8 voxels) with a sign change, at the mean of its edges' zero crossings.
+void TsdfVolume::CellVertices(int block, const NeighbourTable& nb, std::vector<int>& cell_vertex,
+                              std::vector<Vec3f>& vertices) const {
+  cell_vertex.assign(kVoxelsPerBlock, -1);
+  const Eigen::Vector3i base = blocks_[block].index * B;
+  for (int z = 0; z < B; ++z)
+    for (int y = 0; y < B; ++y)
+      for (int x = 0; x < B; ++x) {
+        std::array<float, 8> d;
+        int negative = 0;
+        bool seen = true;
+        for (int c = 0; c < 8 && seen; ++c) {
+          const Voxel* vox = VoxelAt(nb, x + (c & 1), y + ((c >> 1) & 1), z + ((c >> 2) & 1));
+          seen = vox != nullptr && vox->w > 0;
+          if (seen) negative += (d[c] = vox->d) < 0;
+        }
+        if (!seen || negative == 0 || negative == 8) continue;
+        Vec3 sum = Vec3::Zero();
+        int crossings = 0;
+        for (int c = 0; c < 8; ++c)
+          for (int bit : {1, 2, 4}) {
+            if ((c & bit) || (d[c] < 0) == (d[c | bit] < 0)) continue;
+            const double t = d[c] / (d[c] - d[c | bit]);
+            const Vec3 pc((c & 1), (c >> 1) & 1, (c >> 2) & 1);
+            const Vec3 axis(bit == 1, bit == 2, bit == 4);
+            sum += pc + t * axis;
+            ++crossings;
+          }
+        const Vec3 p = (base + Eigen::Vector3i(x, y, z)).cast<double>() + sum / crossings;
+        cell_vertex[LocalIndex(x, y, z)] = static_cast<int>(vertices.size());
+        vertices.push_back((p * options_.voxel_m).cast<float>());
+      }
+}
+
+// A quad per voxel edge with a sign change, joining the vertices of the 4 cells around it.
+void TsdfVolume::CellQuads(int block, const NeighbourTable& nb, const std::vector<std::vector<int>>& cell_vertex,
+                           const std::vector<std::uint32_t>& first_vertex, const std::vector<Vec3f>& vertices,
+                           std::vector<Triangle>& triangles) const {
+  // Around an edge along axis a, the cells in the plane of axes u = a+1, v = a+2 (cyclic, so
+  // u x v = a) listed counter-clockwise as seen from +a.
+  static constexpr int kAround[4][2] = {{-1, -1}, {0, -1}, {0, 0}, {-1, 0}};
+  for (int z = 0; z < B; ++z)
+    for (int y = 0; y < B; ++y)
+      for (int x = 0; x < B; ++x) {
+        const Voxel& v0 = blocks_[block].voxels[LocalIndex(x, y, z)];
+        if (v0.w <= 0) continue;
+        for (int a = 0; a < 3; ++a) {
+          Eigen::Vector3i p1(x, y, z);
+          ++p1[a];
+          const Voxel* v1 = VoxelAt(nb, p1.x(), p1.y(), p1.z());
+          if (v1 == nullptr || v1->w <= 0 || (v0.d < 0) == (v1->d < 0)) continue;
+          std::array<std::uint32_t, 4> quad;
+          bool complete = true;
+          for (int k = 0; k < 4 && complete; ++k) {
+            Eigen::Vector3i c(x, y, z);
+            c[(a + 1) % 3] += kAround[k][0];
+            c[(a + 2) % 3] += kAround[k][1];
+            const int b = nb[NeighbourSlot(c.x(), c.y(), c.z())];
+            const int id = b < 0 ? -1 : cell_vertex[b][LocalIndex(c.x(), c.y(), c.z())];
+            complete = id >= 0;
+            if (complete) quad[k] = first_vertex[b] + static_cast<std::uint32_t>(id);
+          }
+          if (!complete) continue;
+          // Solid (negative) below along +a: the surface faces +a, keep the order; else flip.
+          if (v0.d >= 0) std::swap(quad[1], quad[3]);
+          EmitQuad(quad, vertices, triangles);
+        }
+      }
+}
+
+TriangleMesh TsdfVolume::ExtractMesh() const {
+  const auto nb = Neighbours();
+  const int n = static_cast<int>(blocks_.size());
+  std::vector<std::vector<int>> cell_vertex(n);
+  std::vector<std::vector<Vec3f>> block_vertices(n);
+  tbb::parallel_for(0, n, [&](int i) { CellVertices(i, nb[i], cell_vertex[i], block_vertices[i]); });
+
+  TriangleMesh mesh;
+  std::vector<std::uint32_t> first_vertex(n);
+  for (int i = 0; i < n; ++i) {
+    first_vertex[i] = static_cast<std::uint32_t>(mesh.vertices.size());
+    mesh.vertices.insert(mesh.vertices.end(), block_vertices[i].begin(), block_vertices[i].end());
+  }
+  std::vector<std::vector<Triangle>> block_triangles(n);
+  tbb::parallel_for(0, n, [&](int i) {
+    CellQuads(i, nb[i], cell_vertex, first_vertex, mesh.vertices, block_triangles[i]);
+  });
+  for (const auto& t : block_triangles) mesh.triangles.insert(mesh.triangles.end(), t.begin(), t.end());
+  spdlog::debug("sim: surface nets over {} blocks: {} vertices, {} triangles", n, mesh.vertices.size(),
+                mesh.triangles.size());
+  return mesh;
+}
+
+}  // namespace arref::sim

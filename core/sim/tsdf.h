@@ -1,0 +1,75 @@
+// Sparse TSDF volume: projective fusion of range images and Naive Surface Nets extraction,
+// the way a headset's spatial mapper turns noisy depth into a coarse, hole-riddled mesh.
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <deque>
+#include <unordered_map>
+#include <vector>
+
+#include "arref/geometry.h"
+#include "arref/status.h"
+#include "raycaster.h"
+
+namespace arref::sim {
+
+struct TsdfOptions {
+  double voxel_m = 0.03;
+  double truncation_m = 0.09;
+  Vec3 crop_center = Vec3::Zero();  // only blocks within crop_radius_m of it are allocated
+  double crop_radius_m = 3.0;
+  std::size_t max_blocks = 400000;  // ~1.6 GB of voxels: beyond that the options are unreasonable
+};
+
+class TsdfVolume {
+ public:
+  static constexpr int kBlock = 8;  // voxels per block edge
+
+  explicit TsdfVolume(const TsdfOptions& options);
+
+  // Fuses one range image taken from T_volume_camera (the pose the mapper believes, which
+  // need not be the pose the image was really taken from).
+  Status Integrate(const PinholeCamera& camera, const Iso3& T_volume_camera, const RangeImage& range);
+
+  // Naive Surface Nets in the volume frame: a vertex per sign-changing cell, a quad per
+  // sign-changing edge, only where every voxel involved was observed. Counter-clockwise
+  // winding faces free space.
+  TriangleMesh ExtractMesh() const;
+
+  std::size_t block_count() const { return blocks_.size(); }
+
+ struct Voxel {
+    float d = 0.0f;  // truncated signed distance / truncation: +1 free, < 0 behind the surface
+    float w = 0.0f;  // observation weight, 0 = never seen
+  };
+  struct Block {
+    Eigen::Vector3i index;
+    std::vector<Voxel> voxels;  // kBlock^3, x fastest
+  };
+  using Key = std::uint64_t;
+  using NeighbourTable = std::array<int, 27>;
+
+ private:
+
+  static Key KeyOf(const Eigen::Vector3i& block);
+  Eigen::Vector3i BlockOf(const Vec3& p) const;
+  Status AllocateBand(const PinholeCamera& camera, const Iso3& T_volume_camera, const RangeImage& range);
+  void UpdateBlock(Block& block, const PinholeCamera& camera, const Iso3& T_camera_volume,
+                   const RangeImage& range) const;
+  // For each block, its 27 neighbours (self at 13) as indices into blocks_, -1 if absent.
+  std::vector<NeighbourTable> Neighbours() const;
+  // Voxel at local coordinates in [-1, kBlock] of the block whose neighbours are nb.
+  const Voxel* VoxelAt(const NeighbourTable& nb, int x, int y, int z) const;
+  void CellVertices(int block, const NeighbourTable& nb, std::vector<int>& cell_vertex,
+                    std::vector<Vec3f>& vertices) const;
+  void CellQuads(int block, const NeighbourTable& nb, const std::vector<std::vector<int>>& cell_vertex,
+                 const std::vector<std::uint32_t>& first_vertex, const std::vector<Vec3f>& vertices,
+                 std::vector<Triangle>& triangles) const;
+
+  TsdfOptions options_;
+  std::deque<Block> blocks_;
+  std::unordered_map<Key, int> index_;
+};
+
+}  // namespace arref::sim

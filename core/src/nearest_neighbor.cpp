@@ -1,0 +1,42 @@
+#include "arref/nearest_neighbor.h"
+
+#include <nanoflann.hpp>
+
+namespace arref {
+
+struct PointIndex::Impl {
+  struct Adaptor {
+    const std::vector<Vec3f>* points;
+    std::size_t kdtree_get_point_count() const { return points->size(); }
+    float kdtree_get_pt(std::size_t i, std::size_t dim) const { return (*points)[i][static_cast<int>(dim)]; }
+    template <class Box>
+    bool kdtree_get_bbox(Box&) const { return false; }
+  };
+  using Tree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, Adaptor>, Adaptor, 3, std::uint32_t>;
+
+  explicit Impl(std::vector<Vec3f> p)
+      : points(std::move(p)), adaptor{&points}, tree(3, adaptor, nanoflann::KDTreeSingleIndexAdaptorParams(10)) {
+    tree.buildIndex();
+  }
+  std::vector<Vec3f> points;
+  Adaptor adaptor;
+  Tree tree;
+};
+
+PointIndex::PointIndex(std::vector<Vec3f> points) : impl_(std::make_unique<Impl>(std::move(points))) {}
+PointIndex::PointIndex(PointIndex&&) noexcept = default;
+PointIndex& PointIndex::operator=(PointIndex&&) noexcept = default;
+PointIndex::~PointIndex() = default;
+
+std::size_t PointIndex::size() const { return impl_->points.size(); }
+const std::vector<Vec3f>& PointIndex::points() const { return impl_->points; }
+
+bool PointIndex::Nearest(const Vec3f& query, std::uint32_t* index, float* sq_dist) const {
+  if (impl_->points.empty()) return false;
+  nanoflann::KNNResultSet<float, std::uint32_t> result(1);
+  result.init(index, sq_dist);
+  impl_->tree.findNeighbors(result, query.data(), nanoflann::SearchParams());
+  return true;
+}
+
+}  // namespace arref

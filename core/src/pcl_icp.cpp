@@ -1,0 +1,84 @@
+// ICP through PCL 1.13, as used by the paper (Puljiz et al. 2019, Sec. III-A).
+#include <pcl/point_types.h>
+#include <pcl/registration/icp.h>
+
+#include "arref/registration.h"
+
+namespace arref {
+namespace {
+
+// PCL keeps the iteration count protected; the report needs it.
+template <typename Base>
+class CountingIcp : public Base {
+ public:
+  int iterations() const { return this->nr_iterations_; }
+};
+
+pcl::PointCloud<pcl::PointNormal>::Ptr ToPcl(const PointCloud& cloud) {
+  auto out = pcl::make_shared<pcl::PointCloud<pcl::PointNormal>>();
+  out->resize(cloud.size());
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    auto& p = (*out)[i];
+    p.getVector3fMap() = cloud.points[i];
+    p.getNormalVector3fMap() = cloud.has_normals() ? cloud.normals[i] : Vec3f::Zero();
+  }
+  return out;
+}
+
+template <typename Icp>
+RegistrationOutput Run(Icp& icp, const PointCloud& model_base, const PointCloud& scene_world,
+                       const Iso3& T_world_base_initial, const IcpParams& params) {
+  icp.setInputSource(ToPcl(model_base));
+  icp.setInputTarget(ToPcl(scene_world));
+  icp.setMaxCorrespondenceDistance(params.max_correspondence_m);
+  icp.setMaximumIterations(params.max_iterations);
+  icp.setTransformationEpsilon(params.transformation_epsilon);
+  icp.setEuclideanFitnessEpsilon(params.euclidean_fitness_epsilon);
+  pcl::PointCloud<pcl::PointNormal> aligned;
+  icp.align(aligned, T_world_base_initial.matrix().cast<float>());
+  RegistrationOutput out;
+  out.T_world_base.matrix() = icp.getFinalTransformation().template cast<double>();
+  // Re-orthonormalise: PCL accumulates the transform in float.
+  out.T_world_base.linear() = Quat(out.T_world_base.rotation()).normalized().toRotationMatrix();
+  out.iterations = icp.iterations();
+  out.converged = icp.hasConverged();
+  return out;
+}
+
+}  // namespace
+
+Result<Method> ParseMethod(const std::string& name) {
+  if (name == "pcl-icp") return Method::kPclIcp;
+  if (name == "pcl-icp-plane") return Method::kPclIcpPlane;
+  std::string known;
+  for (const auto& n : MethodNames()) known += (known.empty() ? "" : ", ") + n;
+  return Status::InvalidArgument("unknown registration method '" + name + "' (available: " + known + ")");
+}
+
+const char* MethodName(Method method) { return method == Method::kPclIcp ? "pcl-icp" : "pcl-icp-plane"; }
+
+std::vector<std::string> MethodNames() { return {"pcl-icp", "pcl-icp-plane"}; }
+
+Result<RegistrationOutput> RegisterPclIcp(const PointCloud& model_base, const PointCloud& scene_world,
+                                          const Iso3& T_world_base_initial, const IcpParams& params,
+                                          bool point_to_plane) {
+  if (model_base.size() < 3 || scene_world.size() < 3)
+    return Status::FailedPrecondition("ICP needs at least 3 model and 3 scene points (have " +
+                                      std::to_string(model_base.size()) + " and " + std::to_string(scene_world.size()) + ")");
+  if (!(params.max_correspondence_m > 0) || params.max_iterations <= 0)
+    return Status::InvalidArgument("ICP needs max correspondence distance > 0 and max iterations > 0");
+  if (point_to_plane && (!model_base.has_normals() || !scene_world.has_normals()))
+    return Status::FailedPrecondition("point-to-plane ICP needs normals on model and scene");
+  RegistrationOutput out;
+  if (point_to_plane) {
+    CountingIcp<pcl::IterativeClosestPointWithNormals<pcl::PointNormal, pcl::PointNormal>> icp;
+    out = Run(icp, model_base, scene_world, T_world_base_initial, params);
+  } else {
+    CountingIcp<pcl::IterativeClosestPoint<pcl::PointNormal, pcl::PointNormal>> icp;
+    out = Run(icp, model_base, scene_world, T_world_base_initial, params);
+  }
+  out.stages = {point_to_plane ? "pcl-icp-plane" : "pcl-icp"};
+  return out;
+}
+
+}  // namespace arref

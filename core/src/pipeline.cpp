@@ -1,0 +1,119 @@
+#include "arref/pipeline.h"
+
+#include <spdlog/spdlog.h>
+
+#include <chrono>
+
+#include "arref/metrics.h"
+#include "arref/nearest_neighbor.h"
+#include "arref/spatial_mesh.h"
+
+namespace arref {
+namespace {
+
+class StageClock {
+ public:
+  StageClock(std::vector<StageTime>* out, const ProgressFn& progress) : out_(out), progress_(progress) {}
+  // Ends the running stage (if any) and starts the next.
+  void Start(std::string stage, double fraction) {
+    Stop();
+    stage_ = std::move(stage);
+    start_ = std::chrono::steady_clock::now();
+    if (progress_) progress_(stage_, fraction);
+  }
+  void Stop() {
+    if (stage_.empty()) return;
+    const std::chrono::duration<double, std::milli> d = std::chrono::steady_clock::now() - start_;
+    out_->push_back({stage_, d.count()});
+    spdlog::debug("stage {}: {:.1f} ms", stage_, d.count());
+    stage_.clear();
+  }
+
+ private:
+  std::vector<StageTime>* out_;
+  const ProgressFn& progress_;
+  std::string stage_;
+  std::chrono::steady_clock::time_point start_;
+};
+
+Status CheckOptions(const RegistrationOptions& o) {
+  if (!(o.crop_radius_m > 0)) return Status::InvalidArgument("crop radius must be > 0 m");
+  if (o.scene_samples < 3) return Status::InvalidArgument("scene samples must be >= 3");
+  if (o.voxel_leaf_m < 0) return Status::InvalidArgument("voxel leaf must be >= 0 m");
+  if (!(o.inlier_threshold_m > 0)) return Status::InvalidArgument("inlier threshold must be > 0 m");
+  return Status::Ok();
+}
+
+}  // namespace
+
+double RegistrationReport::total_ms() const {
+  double total = 0;
+  for (const auto& t : timings) total += t.ms;
+  return total;
+}
+
+Result<PointCloud> SampleRobot(const RobotModel& robot, const JointValues& joints, std::size_t samples,
+                               std::uint64_t seed) {
+  auto mesh = robot.PosedMesh(joints);
+  if (!mesh.ok()) return mesh.status();
+  if (mesh->empty()) return Status::FailedPrecondition("robot '" + robot.name() + "' has no geometry to register");
+  return SampleSurface(*mesh, samples, seed);
+}
+
+Result<RegistrationReport> RegisterScene(const PointCloud& model_base, const TriangleMesh& scene_world,
+                                         const Iso3& T_world_seed, const RegistrationOptions& options,
+                                         const ProgressFn& progress) {
+  ARREF_RETURN_IF_ERROR(CheckOptions(options));
+  if (!T_world_seed.matrix().allFinite()) return Status::InvalidArgument("seed pose is not finite");
+  if (model_base.size() < 3) return Status::FailedPrecondition("robot model has fewer than 3 points");
+  RegistrationReport report;
+  report.T_world_seed = T_world_seed;
+  report.method = MethodName(options.method);
+  StageClock clock(&report.timings, progress);
+
+  clock.Start("crop", 0.0);
+  const TriangleMesh cropped = CropToSphere(scene_world, T_world_seed.translation(), options.crop_radius_m);
+  report.scene_triangles = cropped.triangles.size();
+  if (cropped.empty()) {
+    const Vec3 c = T_world_seed.translation();
+    return Status::FailedPrecondition(fmt::format(
+        "no scene triangles within {} m of the seed at ({:.3f}, {:.3f}, {:.3f}); is the seed in the mesh's frame?",
+        options.crop_radius_m, c.x(), c.y(), c.z()));
+  }
+
+  clock.Start("sample", 0.1);
+  PointCloud scene = SampleSurface(cropped, options.scene_samples, options.sample_seed);
+  if (options.mls) {
+    clock.Start("mls", 0.2);
+    auto resampled = MlsResample(scene, *options.mls);
+    if (!resampled.ok()) return resampled.status().WithContext("MLS resampling");
+    scene = std::move(*resampled);
+    report.stages_run.push_back("mls");
+  }
+  if (options.voxel_leaf_m > 0) {
+    clock.Start("voxel", 0.25);
+    scene = VoxelDownsample(scene, options.voxel_leaf_m);
+    report.stages_run.push_back("voxel");
+  }
+  report.scene_points = scene.size();
+  report.model_points = model_base.size();
+
+  clock.Start("register", 0.3);
+  auto out = RegisterPclIcp(model_base, scene, T_world_seed, options.icp, options.method == Method::kPclIcpPlane);
+  if (!out.ok()) return out.status().WithContext(report.method);
+  report.T_world_base = out->T_world_base;
+  report.iterations = out->iterations;
+  report.converged = out->converged;
+  report.stages_run.insert(report.stages_run.end(), out->stages.begin(), out->stages.end());
+
+  clock.Start("evaluate", 0.9);
+  const PointIndex scene_index(scene.points);
+  const FitQuality fit = MeasureFit(model_base.points, report.T_world_base, scene_index, options.inlier_threshold_m);
+  report.rms_m = fit.rms_m;
+  report.inlier_fraction = fit.inlier_fraction;
+  clock.Stop();
+  if (progress) progress("done", 1.0);
+  return report;
+}
+
+}  // namespace arref

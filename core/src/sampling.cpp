@@ -1,0 +1,72 @@
+#include "arref/sampling.h"
+
+#include <algorithm>
+#include <random>
+#include <unordered_map>
+
+namespace arref {
+
+// Area-weighted triangle choice by binary search in the cumulative area, then a uniform point
+// in the triangle by the square-root parameterisation (Osada et al., "Shape distributions",
+// ACM TOG 2002, eq. 1): p = (1-sqrt(r1)) a + sqrt(r1)(1-r2) b + sqrt(r1) r2 c.
+PointCloud SampleSurface(const TriangleMesh& mesh, std::size_t n, std::uint64_t seed) {
+  PointCloud cloud;
+  if (mesh.triangles.empty() || n == 0) return cloud;
+  std::vector<double> cumulative(mesh.triangles.size());
+  std::vector<Vec3f> normals(mesh.triangles.size());
+  double total = 0.0;
+  for (std::size_t i = 0; i < mesh.triangles.size(); ++i) {
+    const auto& t = mesh.triangles[i];
+    const Vec3f cross = (mesh.vertices[t[1]] - mesh.vertices[t[0]]).cross(mesh.vertices[t[2]] - mesh.vertices[t[0]]);
+    const float norm = cross.norm();
+    total += 0.5 * norm;
+    cumulative[i] = total;
+    normals[i] = norm > 0 ? Vec3f(cross / norm) : Vec3f::UnitZ();
+  }
+  if (total <= 0.0) return cloud;
+  std::mt19937_64 rng(seed);
+  std::uniform_real_distribution<double> uniform(0.0, 1.0);
+  cloud.points.reserve(n);
+  cloud.normals.reserve(n);
+  for (std::size_t k = 0; k < n; ++k) {
+    const double pick = uniform(rng) * total;
+    const auto i = static_cast<std::size_t>(std::min<std::ptrdiff_t>(
+        std::upper_bound(cumulative.begin(), cumulative.end(), pick) - cumulative.begin(),
+        static_cast<std::ptrdiff_t>(cumulative.size()) - 1));
+    const auto& t = mesh.triangles[i];
+    const float s = static_cast<float>(std::sqrt(uniform(rng)));
+    const float r2 = static_cast<float>(uniform(rng));
+    cloud.points.push_back((1 - s) * mesh.vertices[t[0]] + s * (1 - r2) * mesh.vertices[t[1]] +
+                           s * r2 * mesh.vertices[t[2]]);
+    cloud.normals.push_back(normals[i]);
+  }
+  return cloud;
+}
+
+PointCloud VoxelDownsample(const PointCloud& cloud, double leaf_m) {
+  if (leaf_m <= 0.0 || cloud.empty()) return cloud;
+  struct Cell { Vec3f sum = Vec3f::Zero(); Vec3f normal = Vec3f::Zero(); int count = 0; };
+  std::unordered_map<std::uint64_t, Cell> cells;
+  std::vector<std::uint64_t> order;  // first-seen order keeps the output deterministic
+  const float inv = static_cast<float>(1.0 / leaf_m);
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
+    const Eigen::Vector3i k = (cloud.points[i] * inv).array().floor().cast<int>();
+    const std::uint64_t key = (static_cast<std::uint64_t>(k.x() & 0x1FFFFF) << 42) |
+                              (static_cast<std::uint64_t>(k.y() & 0x1FFFFF) << 21) |
+                              static_cast<std::uint64_t>(k.z() & 0x1FFFFF);
+    auto [it, inserted] = cells.try_emplace(key);
+    if (inserted) order.push_back(key);
+    it->second.sum += cloud.points[i];
+    if (cloud.has_normals()) it->second.normal += cloud.normals[i];
+    ++it->second.count;
+  }
+  PointCloud out;
+  for (auto key : order) {
+    const Cell& c = cells[key];
+    out.points.push_back(c.sum / static_cast<float>(c.count));
+    if (cloud.has_normals()) out.normals.push_back(c.normal.normalized());
+  }
+  return out;
+}
+
+}  // namespace arref

@@ -1,0 +1,176 @@
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+
+#include "arref/robot_model.h"
+#include "test_support.h"
+
+namespace arref {
+namespace {
+
+using testing::Kr5PackageDir;
+
+RobotModel LoadOrDie(const std::string& urdf, const RobotLoadOptions& options = {}) {
+  auto robot = RobotModel::Load(urdf, options);
+  EXPECT_TRUE(robot.ok()) << robot.status().ToString();
+  return std::move(robot).value();
+}
+
+Iso3 Tool0(const RobotModel& robot, const JointValues& joints = {}) {
+  auto poses = robot.LinkPoses(joints);
+  EXPECT_TRUE(poses.ok()) << poses.status().ToString();
+  return poses->at("tool0");
+}
+
+TEST(BuiltinRobot, HasKr5Kinematics) {
+  const RobotModel robot = LoadOrDie(testing::BuiltinRobotUrdf());
+  EXPECT_EQ(robot.ActuatedJoints().size(), 6u);
+  EXPECT_TRUE(Tool0(robot).translation().isApprox(Vec3(1.515, 0, 0.52), 1e-9));
+  auto mesh = robot.PosedMesh({});
+  ASSERT_TRUE(mesh.ok());
+  EXPECT_GT(mesh->SurfaceArea(), 1.0);
+  EXPECT_LT(mesh->SurfaceArea(), 6.0);
+}
+
+TEST(BuiltinRobot, JointA1RotatesTheArmAboutVerticalAxis) {
+  const RobotModel robot = LoadOrDie(testing::BuiltinRobotUrdf());
+  // joint_a1's frame is flipped (rpy pi 0 0), so a positive angle turns the arm clockwise seen from above.
+  const Vec3 p = Tool0(robot, {{"joint_a1", M_PI / 2}}).translation();
+  EXPECT_NEAR(p.z(), 0.52, 1e-9);
+  EXPECT_NEAR(std::hypot(p.x(), p.y()), 1.515, 1e-9);
+  EXPECT_NEAR(std::abs(p.y()), 1.515, 1e-9);
+}
+
+TEST(RobotModel, RejectsUnknownJointAndOutOfLimitValues) {
+  const RobotModel robot = LoadOrDie(testing::BuiltinRobotUrdf());
+  auto unknown = robot.LinkPoses({{"joint_a9", 0.1}});
+  ASSERT_FALSE(unknown.ok());
+  EXPECT_EQ(unknown.status().code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(unknown.status().message().find("joint_a9"), std::string::npos);
+  EXPECT_NE(unknown.status().message().find("joint_a1"), std::string::npos) << "lists the known joints";
+  auto outside = robot.LinkPoses({{"joint_a2", 2.0}});  // upper limit 1.134
+  ASSERT_FALSE(outside.ok());
+  EXPECT_NE(outside.status().message().find("limits"), std::string::npos);
+  EXPECT_FALSE(robot.LinkPoses({{"joint_a2", std::nan("")}}).ok());
+}
+
+// A small URDF exercising prismatic, continuous, mimic joints, primitives and mesh scale.
+std::string WriteTestUrdf(const std::string& dir) {
+  std::filesystem::create_directories(dir + "/meshes");
+  const std::string urdf = R"(<?xml version="1.0"?>
+<robot name="test_bot">
+  <link name="base"><visual><geometry><box size="1 1 1"/></geometry></visual></link>
+  <link name="slider"><visual><origin xyz="0 0 1" rpy="0 0 0"/><geometry><sphere radius="0.5"/></geometry></visual></link>
+  <link name="wheel"><visual><geometry><cylinder radius="0.1" length="0.2"/></geometry></visual></link>
+  <link name="twin"/>
+  <link name="scaled"><visual><geometry><mesh filename="meshes/box.stl" scale="2 2 2"/></geometry></visual></link>
+  <joint name="slide" type="prismatic"><parent link="base"/><child link="slider"/><axis xyz="1 0 0"/>
+    <limit lower="-1" upper="1" effort="1" velocity="1"/></joint>
+  <joint name="spin" type="continuous"><parent link="slider"/><child link="wheel"/><origin xyz="0 0 2"/><axis xyz="0 0 1"/></joint>
+  <joint name="follow" type="prismatic"><parent link="base"/><child link="twin"/><axis xyz="0 1 0"/>
+    <limit lower="-5" upper="5" effort="1" velocity="1"/><mimic joint="slide" multiplier="2" offset="0.5"/></joint>
+  <joint name="fix" type="fixed"><parent link="base"/><child link="scaled"/></joint>
+</robot>)";
+  std::ofstream(dir + "/test.urdf") << urdf;
+  // A unit cube as ASCII STL.
+  auto cube = RobotModel::FromString(
+      R"(<robot name="c"><link name="l"><visual><geometry><box size="1 1 1"/></geometry></visual></link></robot>)", dir);
+  EXPECT_TRUE(cube.ok());
+  EXPECT_TRUE(SaveMeshFile(*cube->LinkMesh("l"), dir + "/meshes/box.stl").ok());
+  return dir + "/test.urdf";
+}
+
+TEST(RobotModel, PrismaticContinuousMimicAndScale) {
+  const std::string dir = ::testing::TempDir() + "/arref_urdf";
+  const RobotModel robot = LoadOrDie(WriteTestUrdf(dir));
+  const auto actuated = robot.ActuatedJoints();
+  ASSERT_EQ(actuated.size(), 2u) << "the mimic joint is not actuated";
+  auto poses = robot.LinkPoses({{"slide", 0.25}, {"spin", 10.0}});
+  ASSERT_TRUE(poses.ok()) << poses.status().ToString();
+  EXPECT_TRUE(poses->at("slider").translation().isApprox(Vec3(0.25, 0, 0)));
+  EXPECT_TRUE(poses->at("wheel").translation().isApprox(Vec3(0.25, 0, 2)));
+  EXPECT_TRUE(poses->at("wheel").rotation().isApprox(Eigen::AngleAxisd(10.0, Vec3::UnitZ()).toRotationMatrix(), 1e-9))
+      << "continuous joints take any angle";
+  EXPECT_TRUE(poses->at("twin").translation().isApprox(Vec3(0, 1.0, 0))) << "mimic: 2 * 0.25 + 0.5";
+  auto mimic_set = robot.LinkPoses({{"follow", 0.1}});
+  EXPECT_FALSE(mimic_set.ok());
+  const TriangleMesh* scaled = robot.LinkMesh("scaled");
+  ASSERT_NE(scaled, nullptr);
+  const Aabb box = BoundsOf(scaled->vertices);
+  EXPECT_TRUE(box.max.isApprox(Vec3f(1, 1, 1))) << "<mesh scale=2> doubles the unit cube";
+  EXPECT_NEAR(scaled->SurfaceArea(), 24.0, 1e-4);
+  EXPECT_NEAR(robot.LinkMesh("base")->SurfaceArea(), 6.0, 1e-5);
+  EXPECT_NEAR(robot.LinkMesh("slider")->SurfaceArea(), M_PI, 0.05);
+}
+
+TEST(RobotModel, MissingMeshNamesUriAndPlacesLooked) {
+  const std::string xml = R"(<robot name="r"><link name="l"><visual><geometry>
+      <mesh filename="package://no_such_pkg/meshes/x.stl"/></geometry></visual></link></robot>)";
+  auto robot = RobotModel::FromString(xml, "/tmp", RobotLoadOptions{.package_path = {"/opt/a", "/opt/b"}});
+  ASSERT_FALSE(robot.ok());
+  EXPECT_EQ(robot.status().code(), StatusCode::kNotFound);
+  const std::string& m = robot.status().message();
+  EXPECT_NE(m.find("package://no_such_pkg/meshes/x.stl"), std::string::npos) << m;
+  EXPECT_NE(m.find("/opt/a/no_such_pkg/meshes/x.stl"), std::string::npos) << m;
+  EXPECT_NE(m.find("/opt/b"), std::string::npos) << m;
+  EXPECT_NE(m.find("link 'l'"), std::string::npos) << m;
+}
+
+TEST(RobotModel, BadUrdfIsAClearError) {
+  auto robot = RobotModel::FromString("<robot name='x'><link name=", "/tmp");
+  ASSERT_FALSE(robot.ok());
+  EXPECT_EQ(robot.status().code(), StatusCode::kIoError);
+  auto missing = RobotModel::Load("/nonexistent/robot.urdf");
+  ASSERT_FALSE(missing.ok());
+  EXPECT_NE(missing.status().message().find("/nonexistent/robot.urdf"), std::string::npos);
+}
+
+TEST(Kr5Package, Tool0AtZeroJoints) {
+  ARREF_REQUIRE_SHARED();
+  const RobotModel robot = LoadOrDie(Kr5PackageDir() + "/urdf/kr5_arc.urdf",
+                                     RobotLoadOptions{.package_path = {testing::SharedDir() + "/robots"}});
+  EXPECT_TRUE(Tool0(robot).translation().isApprox(Vec3(1.515, 0, 0.52), 1e-9));
+  EXPECT_EQ(robot.ActuatedJoints().size(), 6u);
+}
+
+TEST(Kr5Package, PackageEntryMayBeThePackageItself) {
+  ARREF_REQUIRE_SHARED();
+  auto robot = RobotModel::Load(Kr5PackageDir() + "/urdf/kr5_arc.urdf",
+                                RobotLoadOptions{.package_path = {Kr5PackageDir()}});
+  EXPECT_TRUE(robot.ok()) << robot.status().ToString();
+}
+
+TEST(Kr5Package, DaeAndStlUrdfsGiveTheSameGeometry) {
+  ARREF_REQUIRE_SHARED();
+  const RobotModel dae = LoadOrDie(Kr5PackageDir() + "/urdf/kr5_arc.urdf",
+                                   RobotLoadOptions{.package_path = {testing::SharedDir() + "/robots"}});
+  const RobotModel stl = LoadOrDie(Kr5PackageDir() + "/urdf/kr5_arc_relative.urdf");
+  for (const char* link : {"base_link", "link_1", "link_2", "link_3", "link_4", "link_5", "link_6"}) {
+    const TriangleMesh* a = dae.LinkMesh(link);
+    const TriangleMesh* b = stl.LinkMesh(link);
+    ASSERT_TRUE(a && b) << link;
+    EXPECT_EQ(a->triangles.size(), b->triangles.size()) << link;
+    EXPECT_NEAR(a->SurfaceArea(), b->SurfaceArea(), 1e-4 * b->SurfaceArea()) << link;
+    const Aabb ba = BoundsOf(a->vertices), bb = BoundsOf(b->vertices);
+    EXPECT_TRUE(ba.min.isApprox(bb.min, 1e-3) && ba.max.isApprox(bb.max, 1e-3)) << link;
+  }
+  // Posed with the same joints, the whole robots coincide.
+  const JointValues q = {{"joint_a1", 0.4}, {"joint_a2", -0.9}, {"joint_a3", 1.1}, {"joint_a5", 0.7}};
+  const Aabb pa = BoundsOf(dae.PosedMesh(q)->vertices), pb = BoundsOf(stl.PosedMesh(q)->vertices);
+  EXPECT_TRUE(pa.min.isApprox(pb.min, 1e-3) && pa.max.isApprox(pb.max, 1e-3));
+}
+
+TEST(Kr5Package, CollisionGeometryOnRequest) {
+  ARREF_REQUIRE_SHARED();
+  const RobotModel robot = LoadOrDie(Kr5PackageDir() + "/urdf/kr5_arc_relative.urdf",
+                                     RobotLoadOptions{.package_path = {}, .geometry = GeometryKind::kCollision});
+  // SOURCE.txt: the collision base_link has 1308 triangles, the visual one 8498.
+  EXPECT_EQ(robot.LinkMesh("base_link")->triangles.size(), 1308u);
+  const Aabb box = BoundsOf(robot.LinkMesh("link_2")->vertices);
+  EXPECT_NEAR(box.max.x(), 0.668, 2e-3);
+  EXPECT_NEAR(box.min.z(), -0.310, 2e-3);
+}
+
+}  // namespace
+}  // namespace arref

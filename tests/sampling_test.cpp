@@ -1,0 +1,90 @@
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include "arref/robot_model.h"
+#include "arref/sampling.h"
+#include "test_support.h"
+
+namespace arref {
+namespace {
+
+TriangleMesh TwoQuads() {
+  // A 1x1 quad at z=0 and a 2x2 quad at z=1: the second holds 4/5 of the area.
+  TriangleMesh m;
+  m.vertices = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}, {0, 0, 1}, {2, 0, 1}, {2, 2, 1}, {0, 2, 1}};
+  m.triangles = {{0, 1, 2}, {0, 2, 3}, {4, 5, 6}, {4, 6, 7}};
+  return m;
+}
+
+TEST(Sampling, UniformByArea) {
+  const PointCloud c = SampleSurface(TwoQuads(), 20000, 1);
+  ASSERT_EQ(c.size(), 20000u);
+  ASSERT_TRUE(c.has_normals());
+  std::size_t upper = 0;
+  double mean_x_low = 0;
+  std::size_t low = 0;
+  for (std::size_t i = 0; i < c.size(); ++i) {
+    if (c.points[i].z() > 0.5) {
+      ++upper;
+    } else {
+      mean_x_low += c.points[i].x();
+      ++low;
+    }
+    EXPECT_NEAR(c.normals[i].z(), 1.0f, 1e-6);
+  }
+  // Binomial(20000, 0.8): sigma = 57 points, so 4 sigma is about 0.011.
+  EXPECT_NEAR(static_cast<double>(upper) / c.size(), 0.8, 0.012);
+  EXPECT_NEAR(mean_x_low / low, 0.5, 0.02) << "uniform within a triangle pair";
+}
+
+TEST(Sampling, DeterministicForASeed) {
+  const PointCloud a = SampleSurface(TwoQuads(), 500, 42);
+  const PointCloud b = SampleSurface(TwoQuads(), 500, 42);
+  const PointCloud c = SampleSurface(TwoQuads(), 500, 43);
+  EXPECT_EQ(a.points, b.points);
+  EXPECT_NE(a.points, c.points);
+  EXPECT_TRUE(SampleSurface(TriangleMesh{}, 100, 1).empty());
+}
+
+TEST(Sampling, RobotSampleLiesOnItsSurface) {
+  auto robot = RobotModel::Load(testing::BuiltinRobotUrdf());
+  ASSERT_TRUE(robot.ok());
+  const PointCloud c = SampleSurface(*robot->PosedMesh({}), 10000, 3);
+  const Aabb box = BoundsOf(c.points);
+  EXPECT_NEAR(box.min.z(), 0.0, 1e-3) << "the base stands on z = 0";
+  EXPECT_GT(box.max.x(), 1.4);
+}
+
+TEST(Sampling, VoxelDownsampleOnePointPerCell) {
+  TriangleMesh mesh = TwoQuads();
+  mesh.Transform(MakeYawPose(0, 0, 0.05, 0));  // planes mid-cell: rounding cannot split cells in z
+  const PointCloud c = SampleSurface(mesh, 20000, 1);
+  const PointCloud d = VoxelDownsample(c, 0.1);
+  // 10x10 cells on the small quad, 20x20 on the big one.
+  EXPECT_EQ(d.size(), 500u);
+  EXPECT_TRUE(d.has_normals());
+}
+
+TEST(Sampling, MlsSmoothsNoise) {
+  PointCloud c = SampleSurface(TwoQuads(), 5000, 1);
+  std::mt19937_64 rng(2);
+  std::normal_distribution<float> noise(0, 0.005f);
+  for (auto& p : c.points) p.z() += noise(rng);
+  auto smoothed = MlsResample(c, MlsOptions{.search_radius_m = 0.1});
+  ASSERT_TRUE(smoothed.ok()) << smoothed.status().ToString();
+  double before = 0, after = 0;
+  for (const auto& p : c.points) before += std::pow(p.z() - std::round(p.z()), 2);
+  for (const auto& p : smoothed->points) after += std::pow(p.z() - std::round(p.z()), 2);
+  EXPECT_LT(std::sqrt(after / smoothed->size()), 0.5 * std::sqrt(before / c.size()));
+  MlsOptions up{.search_radius_m = 0.1, .upsampling = MlsOptions::Upsampling::kSampleLocalPlane,
+                .upsampling_radius_m = 0.03, .upsampling_step_m = 0.01};
+  auto upsampled = MlsResample(c, up);
+  ASSERT_TRUE(upsampled.ok());
+  EXPECT_GT(upsampled->size(), c.size());
+  EXPECT_FALSE(MlsResample(c, MlsOptions{.search_radius_m = -1}).ok());
+}
+
+}  // namespace
+}  // namespace arref

@@ -1,0 +1,363 @@
+// Simulated robot cells: determinism, geometry against ground truth, what stays unseen,
+// HoloLens-like surfaces, seed statistics and option validation.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <numbers>
+#include <set>
+#include <string>
+
+#include "arref/nearest_neighbor.h"
+#include "arref/robot_model.h"
+#include "arref/sampling.h"
+#include "arref/sim/cell_simulator.h"
+#include "arref/spatial_mesh.h"
+#include "test_support.h"
+
+namespace arref::sim {
+namespace {
+
+constexpr double kDeg = std::numbers::pi / 180.0;
+
+const RobotModel& BuiltinRobot() {
+  static const RobotModel robot = [] {
+    auto r = RobotModel::Load(testing::BuiltinRobotUrdf());
+    if (!r.ok()) throw std::runtime_error(r.status().ToString());
+    return std::move(r).value();
+  }();
+  return robot;
+}
+
+JointValues ReachingPose() { return {{"joint_a2", -1.2}, {"joint_a3", 1.0}, {"joint_a5", 0.5}}; }
+
+SimOptions SmallOptions() {
+  SimOptions o = SmallPreset();
+  o.cell.joints = ReachingPose();
+  return o;
+}
+
+// Small preset cells are shared by tests: simulating one takes about a second.
+const SimulatedCell& SmallCell() {
+  static const SimulatedCell cell = [] {
+    auto c = SimulateCell(BuiltinRobot(), SmallOptions(), 1);
+    if (!c.ok()) throw std::runtime_error(c.status().ToString());
+    return std::move(c).value();
+  }();
+  return cell;
+}
+
+// Cheap cells for tests that only look at the layout.
+SimOptions LayoutOnly() {
+  SimOptions o = SmallOptions();
+  o.scan.views = 2;
+  o.scan.image_width = 64;
+  o.scan.image_height = 48;
+  return o;
+}
+
+TriangleMesh MergedWorld(const SimulatedCell& cell) {
+  TriangleMesh merged;
+  for (const Surface& s : cell.surfaces) merged.Append(s.mesh, s.T_world_surface);
+  return merged;
+}
+
+// ~1 cm sample spacing (far below the voxel size) over the truth near the base, with normals.
+// Sampled whole and then cut: the floor and walls are a few big triangles that a
+// triangle-wise crop would drop.
+PointCloud TruthSamplesNear(const SimulatedCell& cell, double radius) {
+  const PointCloud all =
+      SampleSurface(cell.truth_world, static_cast<std::size_t>(cell.truth_world.SurfaceArea() / 1e-4), 3);
+  const Vec3f base = cell.T_world_base.translation().cast<float>();
+  PointCloud near;
+  for (std::size_t i = 0; i < all.size(); ++i)
+    if ((all.points[i] - base).norm() < radius) {
+      near.points.push_back(all.points[i]);
+      near.normals.push_back(all.normals[i]);
+    }
+  return near;
+}
+
+double Percentile(std::vector<double> v, double q) {
+  std::sort(v.begin(), v.end());
+  return v[static_cast<std::size_t>(q * (v.size() - 1))];
+}
+
+// Distances from each query point to a dense sampling of a surface.
+std::vector<double> DistancesTo(const PointIndex& index, const std::vector<Vec3f>& queries) {
+  std::vector<double> d;
+  d.reserve(queries.size());
+  for (const Vec3f& q : queries) {
+    std::uint32_t i;
+    float sq;
+    index.Nearest(q, &i, &sq);
+    d.push_back(std::sqrt(sq));
+  }
+  return d;
+}
+
+bool SameSurfaces(const SimulatedCell& a, const SimulatedCell& b) {
+  if (a.surfaces.size() != b.surfaces.size()) return false;
+  for (std::size_t i = 0; i < a.surfaces.size(); ++i) {
+    const Surface& s = a.surfaces[i];
+    const Surface& t = b.surfaces[i];
+    if (s.id != t.id || !s.T_world_surface.isApprox(t.T_world_surface, 0) ||
+        s.mesh.vertices != t.mesh.vertices || s.mesh.triangles != t.mesh.triangles)
+      return false;
+  }
+  return true;
+}
+
+double YawOf(const Iso3& T) { return std::atan2(T.linear()(1, 0), T.linear()(0, 0)); }
+
+double WrapAngle(double a) { return std::remainder(a, 2 * std::numbers::pi); }
+
+TEST(CellSimulator, SameSeedGivesSameCellAndDifferentSeedDoesNot) {
+  const SimOptions o = SmallOptions();
+  auto again = SimulateCell(BuiltinRobot(), o, 1);
+  auto other = SimulateCell(BuiltinRobot(), o, 2);
+  ASSERT_TRUE(again.ok()) << again.status().ToString();
+  ASSERT_TRUE(other.ok()) << other.status().ToString();
+  const SimulatedCell& first = SmallCell();
+  EXPECT_TRUE(SameSurfaces(first, *again));
+  EXPECT_TRUE(first.T_world_base.isApprox(again->T_world_base, 0));
+  ASSERT_EQ(first.seeds.size(), again->seeds.size());
+  for (std::size_t i = 0; i < first.seeds.size(); ++i) EXPECT_TRUE(first.seeds[i].isApprox(again->seeds[i], 0));
+  EXPECT_FALSE(SameSurfaces(first, *other));
+  EXPECT_GT((first.T_world_base.translation() - other->T_world_base.translation()).norm(), 1e-3);
+}
+
+TEST(CellSimulator, BaseAndSeedsAreGravityAligned) {
+  const SimulatedCell& cell = SmallCell();
+  EXPECT_TRUE(cell.T_world_base.linear().col(2).isApprox(Vec3::UnitZ(), 1e-12));
+  ASSERT_EQ(cell.seeds.size(), 10u);
+  for (const Iso3& seed : cell.seeds) EXPECT_TRUE(seed.linear().col(2).isApprox(Vec3::UnitZ(), 1e-12));
+  // The world origin is where the app started: at head height, so the floor is below it.
+  EXPECT_LE(cell.T_world_cell.translation().z(), 0.0);
+  EXPECT_GE(cell.T_world_cell.translation().z(), -1.5);
+}
+
+TEST(CellSimulator, SurfacesHaveUniqueIdsLocalFramesAndValidate) {
+  const SimulatedCell& cell = SmallCell();
+  ASSERT_GT(cell.surfaces.size(), 4u);
+  std::set<std::uint64_t> ids;
+  for (const Surface& s : cell.surfaces) {
+    EXPECT_TRUE(ids.insert(s.id).second) << "duplicate surface id " << s.id;
+    const Status valid = ValidateSurface(s);
+    EXPECT_TRUE(valid.ok()) << valid.ToString();
+    // Chunks of 1 m: local vertices stay near the chunk's corner, not at world coordinates.
+    for (const Vec3f& v : s.mesh.vertices) ASSERT_LT(v.norm(), 1.0 * std::sqrt(3.0) + 0.2);
+  }
+}
+
+TEST(CellSimulator, FusedMeshLiesOnTheTruthAndFacesFreeSpace) {
+  const SimulatedCell& cell = SmallCell();
+  const TriangleMesh fused = MergedWorld(cell);
+  const PointCloud truth_samples = TruthSamplesNear(cell, 3.5);
+  const PointIndex truth_index(truth_samples.points);
+  const std::vector<double> d = DistancesTo(truth_index, fused.vertices);
+  const double median = Percentile(d, 0.5);
+  RecordProperty("median_vertex_to_truth_mm", static_cast<int>(std::lround(median * 1000)));
+  EXPECT_LT(median, cell.voxel_m);
+  EXPECT_LT(Percentile(d, 0.9), 3 * cell.voxel_m);
+
+  // Counter-clockwise winding must give normals that agree with the truth's outward normals.
+  int agree = 0, total = 0;
+  for (const Triangle& t : fused.triangles) {
+    const Vec3f c = (fused.vertices[t[0]] + fused.vertices[t[1]] + fused.vertices[t[2]]) / 3.0f;
+    const Vec3f n = (fused.vertices[t[1]] - fused.vertices[t[0]]).cross(fused.vertices[t[2]] - fused.vertices[t[0]]);
+    std::uint32_t i;
+    float sq;
+    truth_index.Nearest(c, &i, &sq);
+    if (sq > 0.02f * 0.02f || n.norm() == 0) continue;
+    ++total;
+    agree += n.dot(truth_samples.normals[i]) > 0;
+  }
+  ASSERT_GT(total, 1000);
+  EXPECT_GT(static_cast<double>(agree) / total, 0.9) << agree << " of " << total;
+}
+
+TEST(CellSimulator, PartOfTheRobotIsNeverSeen) {
+  const SimulatedCell& cell = SmallCell();
+  auto posed = BuiltinRobot().PosedMesh(cell.joints);
+  ASSERT_TRUE(posed.ok());
+  posed->Transform(cell.T_world_base);
+  const PointCloud robot = SampleSurface(*posed, 5000, 4);
+  const TriangleMesh fused = MergedWorld(cell);
+  const PointIndex fused_index(SampleSurface(fused, static_cast<std::size_t>(fused.SurfaceArea() / 1e-4), 5).points);
+  const std::vector<double> d = DistancesTo(fused_index, robot.points);
+  const double unseen = std::count_if(d.begin(), d.end(), [](double x) { return x > 0.05; }) / double(d.size());
+  const double seen = std::count_if(d.begin(), d.end(), [](double x) { return x < 0.02; }) / double(d.size());
+  RecordProperty("robot_unseen_percent", static_cast<int>(std::lround(unseen * 100)));
+  EXPECT_GT(unseen, 0.1);
+  EXPECT_GT(seen, 0.3);
+}
+
+TEST(CellSimulator, SmallPresetDensityIsHoloLensLike) {
+  const auto t0 = std::chrono::steady_clock::now();
+  auto cell = SimulateCell(BuiltinRobot(), SmallOptions(), 11);
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  ASSERT_TRUE(cell.ok()) << cell.status().ToString();
+  EXPECT_GT(cell->voxel_m, 0.025);
+  EXPECT_LT(cell->voxel_m, 0.04);
+  const TriangleMesh near = CropToSphere(MergedWorld(*cell), cell->T_world_base.translation(), 2.0);
+  const double density = near.triangles.size() / (4.0 / 3.0 * std::numbers::pi * 8.0);
+  RecordProperty("small_triangles_per_m3", static_cast<int>(std::lround(density)));
+  RecordProperty("small_voxel_mm", static_cast<int>(std::lround(cell->voxel_m * 1000)));
+  RecordProperty("small_seconds_x100", static_cast<int>(std::lround(seconds * 100)));
+  EXPECT_GT(density, 300);
+  EXPECT_LT(density, 3000);
+}
+
+TEST(CellSimulator, BigPresetUsesCentimetreVoxels) {
+  SimOptions o = BigPreset();
+  o.cell.joints = ReachingPose();
+  const auto t0 = std::chrono::steady_clock::now();
+  auto cell = SimulateCell(BuiltinRobot(), o, 12);
+  const double seconds = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  ASSERT_TRUE(cell.ok()) << cell.status().ToString();
+  EXPECT_DOUBLE_EQ(cell->voxel_m, 0.01);
+  const TriangleMesh near = CropToSphere(MergedWorld(*cell), cell->T_world_base.translation(), 2.0);
+  const double density = near.triangles.size() / (4.0 / 3.0 * std::numbers::pi * 8.0);
+  RecordProperty("big_triangles_per_m3", static_cast<int>(std::lround(density)));
+  RecordProperty("big_seconds_x100", static_cast<int>(std::lround(seconds * 100)));
+  EXPECT_GT(density, 5000);
+  EXPECT_LT(seconds, 60);
+}
+
+TEST(CellSimulator, TableGapIsHonouredAndClutterAvoidsTheRobot) {
+  for (double gap : {0.05, 0.2, 0.4}) {
+    SimOptions o = LayoutOnly();
+    o.cell.table_gap_m = gap;
+    o.cell.clutter_boxes = 8;
+    auto cell = SimulateCell(BuiltinRobot(), o, 21);
+    ASSERT_TRUE(cell.ok()) << cell.status().ToString();
+    const Prop* footprint = nullptr;
+    const Prop* table = nullptr;
+    int clutter = 0;
+    for (const Prop& p : cell->props) {
+      if (p.kind == "robot_footprint") footprint = &p;
+      if (p.kind == "table") table = &p;
+    }
+    ASSERT_NE(footprint, nullptr);
+    ASSERT_NE(table, nullptr);
+    const Aabb& f = footprint->bounds_cell;
+    EXPECT_NEAR(table->bounds_cell.min.y() - f.max.y(), gap, 1e-4);
+    EXPECT_LT(table->bounds_cell.min.x(), f.max.x());  // beside the robot, not in front of it
+    for (const Prop& p : cell->props) {
+      if (p.kind != "clutter") continue;
+      ++clutter;
+      const Aabb& b = p.bounds_cell;
+      const bool apart = b.min.x() >= f.max.x() || b.max.x() <= f.min.x() || b.min.y() >= f.max.y() ||
+                         b.max.y() <= f.min.y();
+      EXPECT_TRUE(apart) << "clutter box overlaps the robot footprint";
+    }
+    EXPECT_GT(clutter, 4);
+  }
+}
+
+TEST(CellSimulator, PedestalAndSecondRobot) {
+  SimOptions o = LayoutOnly();
+  o.cell.pedestal_height_m = 0.5;
+  o.cell.second_robot = true;
+  o.cell.second_robot_distance_m = 1.8;
+  auto cell = SimulateCell(BuiltinRobot(), o, 31);
+  ASSERT_TRUE(cell.ok()) << cell.status().ToString();
+  EXPECT_NEAR(cell->T_world_base.translation().z() - cell->T_world_cell.translation().z(), 0.5, 1e-9);
+  int pedestals = 0, robots = 0;
+  for (const Prop& p : cell->props) {
+    pedestals += p.kind == "pedestal";
+    if (p.kind == "second_robot") {
+      ++robots;
+      EXPECT_NEAR(p.bounds_cell.min.z(), 0.0, 0.05);  // stands on the floor
+    }
+  }
+  EXPECT_EQ(pedestals, 1);
+  EXPECT_EQ(robots, 1);
+}
+
+TEST(CellSimulator, SeedsLookLikeAUsersPlacement) {
+  const Iso3 T_world_base = MakeYawPose(1.0, -2.0, -1.2, 0.7);
+  std::mt19937_64 rng(5);
+  const SeedNoise noise;
+  const auto seeds = DrawSeeds(T_world_base, noise, 20000, rng);
+  ASSERT_EQ(seeds.size(), 20000u);
+  double horizontal = 0, yaw_sq = 0, vertical = 0, vertical_min = 1, vertical_max = -1;
+  for (const Iso3& s : seeds) {
+    const Vec3 d = s.translation() - T_world_base.translation();
+    horizontal += d.head<2>().norm();
+    vertical += d.z();
+    vertical_min = std::min(vertical_min, d.z());
+    vertical_max = std::max(vertical_max, d.z());
+    yaw_sq += std::pow(WrapAngle(YawOf(s) - 0.7), 2);
+    ASSERT_TRUE(s.linear().col(2).isApprox(Vec3::UnitZ(), 1e-12));
+  }
+  const double n = seeds.size();
+  // Mean of a Rayleigh distribution: sigma * sqrt(pi / 2) = 0.088 m for 0.07 m per axis.
+  EXPECT_NEAR(horizontal / n, 0.07 * std::sqrt(std::numbers::pi / 2), 0.004);
+  EXPECT_NEAR(std::sqrt(yaw_sq / n) / kDeg, 15.0, 0.5);
+  EXPECT_NEAR(vertical / n, 0.15, 0.01);
+  EXPECT_GE(vertical_min, 0.0);
+  EXPECT_LE(vertical_max, 0.3);
+}
+
+TEST(CellSimulator, RejectsNonsenseOptionsNamingTheField) {
+  struct Case {
+    const char* field;
+    void (*mutate)(SimOptions&);
+  };
+  const Case cases[] = {
+      {"scan.views", [](SimOptions& o) { o.scan.views = 0; }},
+      {"scan.image_width", [](SimOptions& o) { o.scan.image_width = -3; }},
+      {"scan.fov_horizontal_deg", [](SimOptions& o) { o.scan.fov_horizontal_deg = 190; }},
+      {"scan.depth_noise_m", [](SimOptions& o) { o.scan.depth_noise_m = -0.01; }},
+      {"scan.max_range_m", [](SimOptions& o) { o.scan.max_range_m = std::nan(""); }},
+      {"scan.path_radius_m", [](SimOptions& o) { o.scan.path_radius_m = 0; }},
+      {"cell.table_gap_m", [](SimOptions& o) { o.cell.table_gap_m = -0.1; }},
+      {"cell.pedestal_height_m", [](SimOptions& o) { o.cell.pedestal_height_m = -1; }},
+      {"cell.clutter_boxes", [](SimOptions& o) { o.cell.clutter_boxes = -1; }},
+      {"fusion.voxel_m", [](SimOptions& o) { o.fusion.voxel_m = -0.02; }},
+      {"fusion.triangles_per_m3", [](SimOptions& o) { o.fusion.triangles_per_m3 = 0; }},
+      {"fusion.surface_chunk_m", [](SimOptions& o) { o.fusion.surface_chunk_m = 0; }},
+      {"fusion.crop_radius_m", [](SimOptions& o) { o.fusion.crop_radius_m = -2; }},
+      {"seed_noise.yaw_sigma_deg", [](SimOptions& o) { o.seed_noise.yaw_sigma_deg = -1; }},
+      {"seed_count", [](SimOptions& o) { o.seed_count = -1; }},
+  };
+  for (const Case& c : cases) {
+    SimOptions o = LayoutOnly();
+    c.mutate(o);
+    auto cell = SimulateCell(BuiltinRobot(), o, 1);
+    ASSERT_FALSE(cell.ok()) << c.field;
+    EXPECT_EQ(cell.status().code(), StatusCode::kInvalidArgument) << cell.status().ToString();
+    EXPECT_NE(cell.status().message().find(c.field), std::string::npos) << cell.status().ToString();
+  }
+}
+
+TEST(CellSimulator, UnknownJointIsReportedWithContext) {
+  SimOptions o = LayoutOnly();
+  o.cell.joints["no_such_joint"] = 0.1;
+  auto cell = SimulateCell(BuiltinRobot(), o, 1);
+  ASSERT_FALSE(cell.ok());
+  EXPECT_EQ(cell.status().code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(cell.status().message().find("cell.joints"), std::string::npos) << cell.status().ToString();
+  EXPECT_NE(cell.status().message().find("no_such_joint"), std::string::npos) << cell.status().ToString();
+}
+
+TEST(CellSimulator, VendorKr5Cell) {
+  ARREF_REQUIRE_SHARED();
+  RobotLoadOptions load;
+  load.package_path = {testing::SharedDir() + "/robots"};
+  auto robot = RobotModel::Load(testing::Kr5PackageDir() + "/urdf/kr5_arc.urdf", load);
+  ASSERT_TRUE(robot.ok()) << robot.status().ToString();
+  SimOptions o = SmallOptions();
+  o.cell.second_robot = true;
+  auto cell = SimulateCell(*robot, o, 41);
+  ASSERT_TRUE(cell.ok()) << cell.status().ToString();
+  const TriangleMesh fused = MergedWorld(*cell);
+  const PointIndex truth_index(TruthSamplesNear(*cell, 3.5).points);
+  EXPECT_LT(Percentile(DistancesTo(truth_index, fused.vertices), 0.5), cell->voxel_m);
+}
+
+}  // namespace
+}  // namespace arref::sim

@@ -1,0 +1,97 @@
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include "arref/spatial_mesh.h"
+
+namespace arref {
+namespace {
+
+Surface Quad(std::uint64_t id, float size = 1.0f) {
+  Surface s;
+  s.id = id;
+  s.mesh.vertices = {{0, 0, 0}, {size, 0, 0}, {size, size, 0}, {0, size, 0}};
+  s.mesh.triangles = {{0, 1, 2}, {0, 2, 3}};
+  return s;
+}
+
+TEST(SpatialMesh, ValidSurfaceIsAccepted) {
+  SpatialMesh map;
+  EXPECT_TRUE(map.Upsert(Quad(1)).ok());
+  EXPECT_EQ(map.size(), 1u);
+}
+
+TEST(SpatialMesh, NonFiniteVertexIsRejectedWithItsIndex) {
+  Surface s = Quad(7);
+  s.mesh.vertices[2].y() = std::nanf("");
+  const Status st = ValidateSurface(s);
+  EXPECT_EQ(st.code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(st.message().find("surface 7"), std::string::npos);
+  EXPECT_NE(st.message().find("vertex 2"), std::string::npos);
+}
+
+TEST(SpatialMesh, IndexOutOfRangeIsRejected) {
+  Surface s = Quad(3);
+  s.mesh.triangles[1][2] = 4;
+  const Status st = ValidateSurface(s);
+  EXPECT_FALSE(st.ok());
+  EXPECT_NE(st.message().find("triangle 1 uses vertex 4"), std::string::npos) << st.message();
+}
+
+TEST(SpatialMesh, EmptyDegenerateAndBadTransformAreRejected) {
+  Surface empty;
+  empty.id = 9;
+  EXPECT_NE(ValidateSurface(empty).message().find("empty"), std::string::npos);
+  Surface flat = Quad(4);
+  for (auto& v : flat.mesh.vertices) v = Vec3f(1, 2, 3);
+  EXPECT_NE(ValidateSurface(flat).message().find("degenerate"), std::string::npos);
+  Surface scaled = Quad(5);
+  scaled.T_world_surface.linear() *= 2.0;
+  EXPECT_NE(ValidateSurface(scaled).message().find("rigid"), std::string::npos);
+  Surface inf = Quad(6);
+  inf.T_world_surface.translation().x() = INFINITY;
+  EXPECT_NE(ValidateSurface(inf).message().find("not finite"), std::string::npos);
+}
+
+TEST(SpatialMesh, BadUpdateKeepsThePreviousSurface) {
+  SpatialMesh map;
+  ASSERT_TRUE(map.Upsert(Quad(1, 2.0f)).ok());
+  Surface bad = Quad(1);
+  bad.mesh.triangles[0][0] = 99;
+  EXPECT_FALSE(map.Upsert(bad).ok());
+  ASSERT_EQ(map.size(), 1u);
+  EXPECT_NEAR(map.MergedWorld().SurfaceArea(), 4.0, 1e-6) << "the old 2x2 surface is still there";
+}
+
+TEST(SpatialMesh, UpdateReplacesAndTransformApplies) {
+  SpatialMesh map;
+  ASSERT_TRUE(map.Upsert(Quad(1)).ok());
+  Surface moved = Quad(1);
+  moved.T_world_surface = MakeYawPose(10, 0, 1, M_PI / 2);
+  ASSERT_TRUE(map.Upsert(moved).ok());
+  ASSERT_TRUE(map.Upsert(Quad(2)).ok());
+  EXPECT_EQ(map.size(), 2u);
+  const TriangleMesh merged = map.MergedWorld();
+  EXPECT_EQ(merged.triangles.size(), 4u);
+  const Aabb box = BoundsOf(merged.vertices);
+  EXPECT_NEAR(box.max.x(), 10.0, 1e-5);
+  EXPECT_NEAR(box.max.z(), 1.0, 1e-5);
+  EXPECT_TRUE(map.Remove(1));
+  EXPECT_FALSE(map.Remove(1));
+  EXPECT_EQ(map.size(), 1u);
+}
+
+TEST(SpatialMesh, CropKeepsTrianglesTouchingTheSphere) {
+  TriangleMesh grid;
+  for (int i = 0; i < 10; ++i) grid.Append(Quad(0).mesh, MakeYawPose(i, 0, 0, 0));
+  const TriangleMesh cropped = CropToSphere(grid, Vec3(0, 0, 0), 2.5);
+  // Quads at x = 0, 1, 2 have a vertex within 2.5 m.
+  EXPECT_EQ(cropped.triangles.size(), 6u);
+  EXPECT_NEAR(cropped.SurfaceArea(), 3.0, 1e-6);
+  for (const auto& t : cropped.triangles)
+    for (auto v : t) EXPECT_LT(v, cropped.vertices.size());
+  EXPECT_TRUE(CropToSphere(grid, Vec3(100, 0, 0), 1.0).empty());
+}
+
+}  // namespace
+}  // namespace arref

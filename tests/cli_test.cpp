@@ -1,0 +1,140 @@
+// `arref` end to end: the real binary, simulated cells with ground truth, bad input.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <filesystem>
+#include <nlohmann/json.hpp>
+
+#include "test_support.h"
+
+namespace arref {
+namespace {
+
+using testing::RunCommand;
+
+std::string Arref() { return std::string(ARREF_BINARY_DIR) + "/clients/cli/arref"; }
+
+class CliTest : public ::testing::Test {
+ protected:
+  static void SetUpTestSuite() {
+    dir_ = ::testing::TempDir() + "/arref_cli";
+    std::filesystem::create_directories(dir_);
+  }
+  // Simulates a small-preset cell with the built-in robot; returns the truth path.
+  static std::string Simulate(int rng_seed, const std::string& extra = "") {
+    const std::string base = dir_ + "/cell" + std::to_string(rng_seed);
+    const auto r = RunCommand(Arref() + " simulate --rng-seed " + std::to_string(rng_seed) + " --mesh-out " + base +
+                              ".ply --truth-out " + base + ".json " + extra);
+    EXPECT_EQ(r.exit_code, 0) << r.err;
+    return base;
+  }
+  static inline std::string dir_;
+};
+
+TEST_F(CliTest, SimulateWritesMeshAndTruth) {
+  const std::string base = Simulate(11, "--seeds 4");
+  std::ifstream in(base + ".json");
+  const auto truth = nlohmann::json::parse(in);
+  EXPECT_EQ(truth["seeds"].size(), 4u);
+  EXPECT_EQ(truth["T_world_base"].size(), 16u);
+  EXPECT_EQ(truth["joints"].size(), 6u);
+  EXPECT_GT(truth["triangles"].get<int>(), 1000);
+  EXPECT_GT(std::filesystem::file_size(base + ".ply"), 10000u);
+}
+
+// PCL ICP with the paper's parameters from user-like seeds. Thresholds from
+// `scripts/measure-icp.sh 10 10` (100 runs): built-in robot median ADD 10.4 mm, 99 % within
+// 20 mm; vendor KR5 median 23.1 mm, p95 29.0 mm (the unseen back of the robot pulls ICP off).
+constexpr double kBuiltinMedianAddMax = 0.015;
+constexpr double kVendorMedianAddMax = 0.035;
+
+TEST_F(CliTest, RegisterRecoversThePoseFromUserLikeSeeds) {
+  std::vector<double> adds;
+  for (int cell : {1, 2, 3}) {
+    const std::string base = Simulate(cell, "--seeds 4");
+    for (int seed = 0; seed < 4; ++seed) {
+      const auto r = RunCommand(Arref() + " register --scene " + base + ".ply --truth " + base +
+                                ".json --seed-index " + std::to_string(seed) + " --json");
+      ASSERT_EQ(r.exit_code, 0) << r.err;
+      const auto j = nlohmann::json::parse(r.out);
+      EXPECT_EQ(j["status"], "OK");
+      EXPECT_EQ(j["points"]["scene"].get<int>(), 16000);
+      EXPECT_GT(j["iterations"].get<int>(), 0);
+      EXPECT_TRUE(j["timings_ms"].contains("register"));
+      adds.push_back(j["add_m"].get<double>());
+    }
+  }
+  std::sort(adds.begin(), adds.end());
+  const double median = adds[adds.size() / 2];
+  const auto within_20mm = std::count_if(adds.begin(), adds.end(), [](double a) { return a <= 0.020; });
+  ::testing::Test::RecordProperty("median_add_mm", std::to_string(median * 1e3));
+  EXPECT_LT(median, kBuiltinMedianAddMax);
+  EXPECT_GE(within_20mm, 10) << "of " << adds.size();
+}
+
+TEST_F(CliTest, UnityFrameRoundTrip) {
+  // The same scene written in Unity convention registers to the same internal pose.
+  const std::string ros = Simulate(5, "--seeds 1");
+  const std::string unity = dir_ + "/cell5u";
+  ASSERT_EQ(RunCommand(Arref() + " simulate --rng-seed 5 --seeds 1 --frame unity --mesh-out " + unity +
+                       ".ply --truth-out " + unity + ".json").exit_code, 0);
+  const auto a = RunCommand(Arref() + " register --scene " + ros + ".ply --truth " + ros + ".json --json");
+  const auto b = RunCommand(Arref() + " register --frame unity --scene " + unity + ".ply --truth " + unity + ".json --json");
+  ASSERT_EQ(a.exit_code, 0) << a.err;
+  ASSERT_EQ(b.exit_code, 0) << b.err;
+  const auto ja = nlohmann::json::parse(a.out), jb = nlohmann::json::parse(b.out);
+  EXPECT_EQ(jb["frame"], "unity");
+  EXPECT_NEAR(ja["add_m"].get<double>(), jb["add_m"].get<double>(), 0.002);
+  for (int i = 0; i < 16; ++i)
+    EXPECT_NEAR(ja["T_world_base"][i].get<double>(), jb["T_world_base"][i].get<double>(), 2e-3);
+  // Unity position is (-y, z, x) of the internal one.
+  EXPECT_NEAR(jb["position"][0].get<double>(), -ja["position"][1].get<double>(), 2e-3);
+  EXPECT_NEAR(jb["position"][1].get<double>(), ja["position"][2].get<double>(), 2e-3);
+  EXPECT_NEAR(jb["position"][2].get<double>(), ja["position"][0].get<double>(), 2e-3);
+}
+
+TEST_F(CliTest, BadInputGivesClearErrorsAndExitCodes) {
+  const std::string base = Simulate(21, "--seeds 1");
+  struct Case { std::string args; int code; std::string text; };
+  const std::vector<Case> cases = {
+      {"register --scene /nonexistent.ply --seed 0,0,0,0,0,0,1", 3, "/nonexistent.ply"},
+      {"register --scene " + base + ".ply --seed 0,0,0", 3, "expected 7"},
+      {"register --scene " + base + ".ply --seed 0,0,0,0,0,0,2", 3, "unit length"},
+      {"register --scene " + base + ".ply --seed 0,0,x,0,0,0,1", 3, "'x' is not a number"},
+      {"register --scene " + base + ".ply --truth " + base + ".json --method teleport", 3, "teleport"},
+      {"register --scene " + base + ".ply --truth " + base + ".json --joints joint_z=1", 3, "joint_z"},
+      {"register --scene " + base + ".ply --truth " + base + ".json --seed-index 9", 3, "1 seeds"},
+      {"register --scene " + base + ".ply --seed 500,500,0,0,0,0,1", 4, "no scene triangles"},
+      {"register --scene " + base + ".ply --truth " + base + ".json --robot /nope.urdf", 3, "/nope.urdf"},
+      {"register --scene " + base + ".json --seed 0,0,0,0,0,0,1", 3, "cannot read mesh"},
+      {"register --seed 0,0,0,0,0,0,1", 2, "--scene"},
+      {"register --scene " + base + ".ply --frame enu --seed 0,0,0,0,0,0,1", 2, "enu"},
+      {"fly", 2, "fly"},
+  };
+  for (const auto& c : cases) {
+    const auto r = RunCommand(Arref() + " " + c.args);
+    EXPECT_EQ(r.exit_code, c.code) << c.args << "\n" << r.err;
+    EXPECT_NE((r.err + r.out).find(c.text), std::string::npos) << c.args << "\n" << r.err;
+  }
+}
+
+TEST_F(CliTest, RegistersTheVendorKr5) {
+  ARREF_REQUIRE_SHARED();
+  const std::string robot = "--robot " + testing::Kr5PackageDir() + "/urdf/kr5_arc.urdf --package-path " +
+                            testing::SharedDir() + "/robots";
+  const std::string base = dir_ + "/vendor";
+  ASSERT_EQ(RunCommand(Arref() + " simulate " + robot + " --seeds 3 --joints joint_a2=-0.6,joint_a3=0.9 --mesh-out " +
+                       base + ".ply --truth-out " + base + ".json").exit_code, 0);
+  std::vector<double> adds;
+  for (int seed = 0; seed < 3; ++seed) {
+    const auto r = RunCommand(Arref() + " register " + robot + " --scene " + base + ".ply --truth " + base +
+                              ".json --json --seed-index " + std::to_string(seed));
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    adds.push_back(nlohmann::json::parse(r.out)["add_m"].get<double>());
+  }
+  std::sort(adds.begin(), adds.end());
+  EXPECT_LT(adds[1], kVendorMedianAddMax) << "median ADD on the vendor KR5";
+}
+
+}  // namespace
+}  // namespace arref

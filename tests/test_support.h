@@ -24,3 +24,36 @@ inline bool HaveShared() { return std::filesystem::exists(Kr5PackageDir() + "/ur
                    << ::arref::testing::SharedDir()                                         \
                    << ": the vendor KR5 package is only beside CI's and developers' clones"; \
   } while (0)
+
+#include <array>
+#include <cstdio>
+#include <fstream>
+#include <sstream>
+#include <sys/wait.h>
+
+namespace arref::testing {
+
+struct CommandResult {
+  int exit_code = -1;
+  std::string out;  // stdout
+  std::string err;  // stderr
+};
+
+// Runs a shell command line, capturing stdout and stderr.
+inline CommandResult RunCommand(const std::string& command) {
+  const std::string err_path = ::testing::TempDir() + "/arref_cmd_stderr.txt";
+  CommandResult result;
+  FILE* pipe = popen((command + " 2>" + err_path).c_str(), "r");
+  if (pipe == nullptr) return result;
+  std::array<char, 4096> buffer;
+  for (std::size_t n; (n = fread(buffer.data(), 1, buffer.size(), pipe)) > 0;) result.out.append(buffer.data(), n);
+  const int status = pclose(pipe);
+  result.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  std::ifstream err(err_path);
+  std::stringstream ss;
+  ss << err.rdbuf();
+  result.err = ss.str();
+  return result;
+}
+
+}  // namespace arref::testing

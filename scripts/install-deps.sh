@@ -1,0 +1,33 @@
+#!/usr/bin/env bash
+# Installs arref's build and runtime dependencies from Debian 12 packages (run as root).
+# Skips apt entirely when everything is already installed.
+set -euo pipefail
+
+PACKAGES=(
+  cmake ninja-build g++ pkg-config ccache
+  libeigen3-dev libspdlog-dev liburdfdom-dev libassimp-dev libnanoflann-dev libtbb-dev
+  libpcl-dev libembree-dev
+  libboost-dev libprotobuf-dev protobuf-compiler libyaml-cpp-dev libsystemd-dev
+  libcli11-dev nlohmann-json3-dev
+  libgtest-dev libgmock-dev libbenchmark-dev
+  gnuplot-nox
+)
+
+missing=()
+for p in "${PACKAGES[@]}"; do
+  dpkg-query -W -f='${Status}' "$p" 2>/dev/null | grep -q "install ok installed" || missing+=("$p")
+done
+if ((${#missing[@]} == 0)); then
+  echo "arref: all ${#PACKAGES[@]} Debian packages already installed"
+  exit 0
+fi
+
+SUDO=""
+if [[ $(id -u) -ne 0 ]]; then
+  command -v sudo >/dev/null || { echo "arref: installing ${missing[*]} needs root (or sudo)" >&2; exit 1; }
+  SUDO=sudo
+fi
+echo "arref: installing ${#missing[@]} Debian packages: ${missing[*]}"
+export DEBIAN_FRONTEND=noninteractive
+$SUDO apt-get update -qq
+$SUDO apt-get install -y -qq --no-install-recommends "${missing[@]}"

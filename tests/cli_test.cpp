@@ -109,7 +109,7 @@ TEST_F(CliTest, BadInputGivesClearErrorsAndExitCodes) {
       {"register --scene " + base + ".json --seed 0,0,0,0,0,0,1", 3, "cannot read mesh"},
       {"register --seed 0,0,0,0,0,0,1", 2, "--scene"},
       {"register --scene " + base + ".ply --frame enu --seed 0,0,0,0,0,0,1", 2, "enu"},
-      {"fly", 2, "fly"},
+      {"fly", 2, "subcommand"},
   };
   for (const auto& c : cases) {
     const auto r = RunCommand(Arref() + " " + c.args);

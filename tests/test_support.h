@@ -30,6 +30,7 @@ inline bool HaveShared() { return std::filesystem::exists(Kr5PackageDir() + "/ur
 #include <fstream>
 #include <sstream>
 #include <sys/wait.h>
+#include <unistd.h>
 
 namespace arref::testing {
 
@@ -41,7 +42,8 @@ struct CommandResult {
 
 // Runs a shell command line, capturing stdout and stderr.
 inline CommandResult RunCommand(const std::string& command) {
-  const std::string err_path = ::testing::TempDir() + "/arref_cmd_stderr.txt";
+  // Per process: CTest runs test cases in parallel processes.
+  const std::string err_path = ::testing::TempDir() + "/arref_cmd_stderr_" + std::to_string(getpid()) + ".txt";
   CommandResult result;
   FILE* pipe = popen((command + " 2>" + err_path).c_str(), "r");
   if (pipe == nullptr) return result;

@@ -8,7 +8,9 @@
 #include <cmath>
 #include <map>
 #include <numbers>
+#include <sstream>
 #include <string>
+#include <tuple>
 
 #include "raycaster.h"
 #include "scene_builder.h"
@@ -24,6 +26,7 @@ constexpr double kDeg = std::numbers::pi / 180.0;
 constexpr double kSurfacePerVolume = 0.6;
 constexpr double kMinVoxel = 0.01;  // finer gains nothing at 8 mm depth noise and costs memory
 constexpr double kMaxVoxel = 0.05;
+constexpr double kNoiseSigmasInBand = 6.0;
 // Long-throw depth runs at a few frames per second: time between the path's views.
 constexpr double kSecondsPerView = 0.5;
 
@@ -31,7 +34,9 @@ using Clock = std::chrono::steady_clock;
 double SecondsSince(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
 
 Status Invalid(const std::string& field, double value, const std::string& rule) {
-  return Status::InvalidArgument(field + " = " + std::to_string(value) + ": " + rule);
+  std::ostringstream message;
+  message << field << " = " << value << ": " << rule;
+  return Status::InvalidArgument(message.str());
 }
 
 // Each check: field name, value, whether it is acceptable, what it must be.
@@ -226,7 +231,9 @@ Result<TriangleMesh> ScanAndFuse(const CellScene& scene, const SimOptions& optio
   const PinholeCamera camera = PinholeCamera::FromFov(scan.image_width, scan.image_height, scan.fov_horizontal_deg);
   TsdfOptions tsdf;
   tsdf.voxel_m = voxel_m;
-  tsdf.truncation_m = options.fusion.truncation_voxels * voxel_m;
+  // A band narrower than the depth noise drops the noisier half of the observations behind
+  // the surface, biasing voxels positive and punching holes in fine meshes.
+  tsdf.truncation_m = std::max(options.fusion.truncation_voxels * voxel_m, kNoiseSigmasInBand * scan.depth_noise_m);
   tsdf.crop_center = (T_world_cell * scene.T_cell_base).translation();
   tsdf.crop_radius_m = options.fusion.crop_radius_m;
   TsdfVolume volume(tsdf);

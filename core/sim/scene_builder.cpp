@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <numbers>
 
 namespace arref::sim {
@@ -34,6 +35,7 @@ Aabb FootprintOf(const TriangleMesh& posed) {
   Aabb box;
   for (const auto& v : posed.vertices)
     if (v.z() <= min_z + kFootprintHeight) box.Extend(v);
+  box.max.z() = min_z + static_cast<float>(kFootprintHeight);
   return box;
 }
 
@@ -71,6 +73,9 @@ Result<JointValues> RandomJoints(const RobotModel& robot, std::mt19937_64& rng) 
 struct Layout {
   CellScene* scene;
   std::vector<Aabb> keep_out;  // clutter on the floor must not intersect these
+  std::vector<Aabb> clutter;   // boxes placed so far
+  Aabb room;                   // floor clutter stays inside (in front of the walls)
+  Aabb base;                   // what the robot stands on: its footprint, or its pedestal
   std::mt19937_64* rng;
 };
 
@@ -90,6 +95,7 @@ void AddPedestal(Layout& layout, double height) {
   const Vec3 center(0.5 * (fp.min.x() + fp.max.x()), 0.5 * (fp.min.y() + fp.max.y()), height / 2);
   AddBox(layout, "pedestal", center, size);
   layout.keep_out.push_back(BoxBounds(center, size));
+  layout.base = BoxBounds(center, size);
 }
 
 // Two walls meeting behind the robot (-x) and on its right (-y), beyond the walking path so
@@ -102,15 +108,22 @@ void AddWalls(Layout& layout, const CellOptions& cell, const ScanOptions& scan) 
   double side = -std::max(2.4, scan.path_radius_m + 0.4);
   if (cell.second_robot) side = std::min(side, -(cell.second_robot_distance_m + 1.0));
   const double far = kFloorSize / 2;
-  AddBox(layout, "wall", Vec3(back - kWallThickness / 2, (side + far) / 2, kWallHeight / 2),
-         Vec3(kWallThickness, far - side, kWallHeight));
-  AddBox(layout, "wall", Vec3((back + far) / 2, side - kWallThickness / 2, kWallHeight / 2),
-         Vec3(far - back, kWallThickness, kWallHeight));
+  const Vec3 back_center(back - kWallThickness / 2, (side + far) / 2, kWallHeight / 2);
+  const Vec3 back_size(kWallThickness, far - side, kWallHeight);
+  const Vec3 side_center((back + far) / 2, side - kWallThickness / 2, kWallHeight / 2);
+  const Vec3 side_size(far - back, kWallThickness, kWallHeight);
+  AddBox(layout, "wall", back_center, back_size);
+  AddBox(layout, "wall", side_center, side_size);
+  layout.keep_out.push_back(BoxBounds(back_center, back_size));
+  layout.room.min.x() = static_cast<float>(back);
+  layout.room.min.y() = static_cast<float>(side);
+  layout.keep_out.push_back(BoxBounds(side_center, side_size));
 }
 
-// Table on the robot's left (+y): its near edge table_gap_m from the base footprint.
+// Table on the robot's left (+y): its near edge table_gap_m from the base footprint (or the
+// pedestal, which is what the table would bump into).
 void AddTable(Layout& layout, double gap) {
-  const Aabb& fp = layout.scene->footprint_cell;
+  const Aabb& fp = layout.base;
   const double x0 = std::uniform_real_distribution<double>(-0.3, 0.3)(*layout.rng);
   const double y_near = fp.max.y() + gap;
   const Vec3 c(x0, y_near + kTableSize.y() / 2, kTableHeight);
@@ -150,32 +163,53 @@ Status AddSecondRobot(Layout& layout, const RobotModel& robot, double distance) 
 }
 
 bool FitsOnFloor(const Layout& layout, const Aabb& box) {
+  if ((box.min.array() < layout.room.min.array()).any() || (box.max.array() > layout.room.max.array()).any())
+    return false;
   for (const Aabb& k : layout.keep_out)
     if (OverlapXY(box, k)) return false;
   return true;
 }
 
-// Boxes of 0.1-0.5 m on the floor around the robot or on the table top.
+// A clutter box's centre and size: on the table top or on the floor around the robot.
+struct BoxPlacement {
+  Vec3 center, size;
+  double yaw;
+};
+
+BoxPlacement DrawClutterBox(const Aabb* table, std::mt19937_64& rng) {
+  std::uniform_real_distribution<double> size_d(0.1, 0.5), unit(0, 1), angle_d(0, 2 * std::numbers::pi);
+  BoxPlacement b{Vec3::Zero(), Vec3(size_d(rng), size_d(rng), size_d(rng)), angle_d(rng)};
+  if (table != nullptr) {
+    // Kept on the top whatever its yaw: its half diagonal stays inside the top.
+    const double half = std::min(0.5 * b.size.head<2>().norm(), 0.5 * kTableSize.y() - 0.01);
+    b.center = Vec3(table->min.x() + half + unit(rng) * (kTableSize.x() - 2 * half),
+                    table->min.y() + half + unit(rng) * (kTableSize.y() - 2 * half), kTableHeight + b.size.z() / 2);
+  } else {
+    const double r = 0.5 + 1.3 * unit(rng), a = angle_d(rng);
+    b.center = Vec3(r * std::cos(a), r * std::sin(a), b.size.z() / 2);
+  }
+  return b;
+}
+
+// Boxes of 0.1-0.5 m, about a third on the table, the rest on the floor around the robot,
+// none intersecting the robot, the other props or each other.
 void AddClutter(Layout& layout, int count, const Aabb* table) {
   auto& rng = *layout.rng;
-  std::uniform_real_distribution<double> size_d(0.1, 0.5), unit(0, 1), angle_d(0, 2 * std::numbers::pi);
+  std::uniform_real_distribution<double> unit(0, 1);
   for (int i = 0; i < count; ++i) {
+    const bool on_table = table != nullptr && unit(rng) < 0.35;
     bool placed = false;
     for (int attempt = 0; attempt < 100 && !placed; ++attempt) {
-      const Vec3 size(size_d(rng), size_d(rng), size_d(rng));
-      const double yaw = angle_d(rng);
-      Vec3 c;
-      if (table != nullptr && unit(rng) < 0.35) {
-        const double half = 0.5 * size.head<2>().norm();
-        if (2 * half > std::min(kTableSize.x(), kTableSize.y())) continue;
-        c = Vec3(table->min.x() + half + unit(rng) * (kTableSize.x() - 2 * half),
-                 table->min.y() + half + unit(rng) * (kTableSize.y() - 2 * half), kTableHeight + size.z() / 2);
-      } else {
-        const double r = 0.5 + 1.3 * unit(rng), a = angle_d(rng);
-        c = Vec3(r * std::cos(a), r * std::sin(a), size.z() / 2);
-        if (!FitsOnFloor(layout, BoxBounds(c, size, yaw))) continue;
-      }
-      AddBox(layout, "clutter", c, size, yaw);
+      const BoxPlacement b = DrawClutterBox(on_table ? table : nullptr, rng);
+      const Aabb bounds = BoxBounds(b.center, b.size, b.yaw);
+      // Table boxes overlap the table's own keep-out footprint by design: check only the others.
+      const bool free = on_table ? std::none_of(layout.clutter.begin(), layout.clutter.end(),
+                                                [&](const Aabb& c) { return OverlapXY(c, bounds); })
+                                 : FitsOnFloor(layout, bounds);
+      if (!free) continue;
+      AddBox(layout, "clutter", b.center, b.size, b.yaw);
+      layout.keep_out.push_back(bounds);
+      layout.clutter.push_back(bounds);
       placed = true;
     }
     if (!placed) spdlog::debug("sim: no room for clutter box {} of {}", i + 1, count);
@@ -223,7 +257,9 @@ Result<CellScene> BuildCellScene(const RobotModel& robot, const CellOptions& opt
   scene.mesh.Append(*posed, scene.T_cell_base);
   scene.props.push_back({"robot_footprint", scene.footprint_cell});
 
-  Layout layout{&scene, {Grown(scene.footprint_cell, 0.05)}, &rng};
+  Layout layout{&scene, {Grown(scene.footprint_cell, 0.05)}, {}, BoundsOf(MakeFloor(kFloorSize).vertices),
+                scene.footprint_cell, &rng};
+  layout.room.max.z() = std::numeric_limits<float>::max();
   AddPedestal(layout, options.pedestal_height_m);
   AddProp(layout, "floor", MakeFloor(kFloorSize), BoundsOf(MakeFloor(kFloorSize).vertices));
   if (options.walls) AddWalls(layout, options, scan);

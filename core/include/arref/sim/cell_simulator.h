@@ -20,7 +20,7 @@ struct CellOptions {
   double pedestal_height_m = 0.0;   // 0: robot on the floor
   bool walls = true;                // two walls meeting behind the robot
   bool table = true;                // a table beside the robot
-  double table_gap_m = 0.2;         // table edge to robot base footprint, 0.05-0.4 typical
+  double table_gap_m = 0.2;         // table edge to robot base footprint (or pedestal), 0.05-0.4 typical
   int clutter_boxes = 4;            // random boxes on the floor and table
   bool second_robot = false;        // another robot of the same model nearby
   double second_robot_distance_m = 1.6;
@@ -45,7 +45,7 @@ struct ScanOptions {
 struct FusionOptions {
   double triangles_per_m3 = 1000.0;  // HoloLens density setting; sets the voxel size when voxel_m == 0
   double voxel_m = 0.0;              // explicit voxel edge; 0 = derive from triangles_per_m3
-  double truncation_voxels = 3.0;
+  double truncation_voxels = 3.0;     // TSDF band; widened to 6 sigma of scan.depth_noise_m if that is more
   double surface_chunk_m = 1.0;      // split into HoloLens-like surfaces on this grid
   double crop_radius_m = 3.0;        // fuse only within this distance of the robot base
 };

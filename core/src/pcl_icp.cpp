@@ -47,18 +47,6 @@ RegistrationOutput Run(Icp& icp, const PointCloud& model_base, const PointCloud&
 
 }  // namespace
 
-Result<Method> ParseMethod(const std::string& name) {
-  if (name == "pcl-icp") return Method::kPclIcp;
-  if (name == "pcl-icp-plane") return Method::kPclIcpPlane;
-  std::string known;
-  for (const auto& n : MethodNames()) known += (known.empty() ? "" : ", ") + n;
-  return Status::InvalidArgument("unknown registration method '" + name + "' (available: " + known + ")");
-}
-
-const char* MethodName(Method method) { return method == Method::kPclIcp ? "pcl-icp" : "pcl-icp-plane"; }
-
-std::vector<std::string> MethodNames() { return {"pcl-icp", "pcl-icp-plane"}; }
-
 Result<RegistrationOutput> RegisterPclIcp(const PointCloud& model_base, const PointCloud& scene_world,
                                           const Iso3& T_world_base_initial, const IcpParams& params,
                                           bool point_to_plane) {

@@ -99,7 +99,7 @@ Result<RegistrationReport> RegisterScene(const PointCloud& model_base, const Tri
   report.model_points = model_base.size();
 
   clock.Start("register", 0.3);
-  auto out = RegisterPclIcp(model_base, scene, T_world_seed, options.icp, options.method == Method::kPclIcpPlane);
+  auto out = MethodInfoOf(options.method).run(MethodInput{model_base, scene, T_world_seed, options});
   if (!out.ok()) return out.status().WithContext(report.method);
   report.T_world_base = out->T_world_base;
   report.iterations = out->iterations;

@@ -16,18 +16,6 @@
 
 namespace arref {
 
-struct RegistrationOptions {
-  double crop_radius_m = 2.0;      // the paper's 2 m sphere around the seed
-  std::size_t scene_samples = 16000;  // the paper's "small"; "big" is 256,000
-  std::size_t model_samples = 10000;
-  std::optional<MlsOptions> mls;   // the paper's "MLS method" (off by default, as its best)
-  double voxel_leaf_m = 0.0;       // optional voxel downsampling of the scene sample
-  Method method = Method::kPclIcp;
-  IcpParams icp;
-  double inlier_threshold_m = 0.02;
-  std::uint64_t sample_seed = 1;   // sampling is deterministic for a seed
-};
-
 struct StageTime {
   std::string stage;
   double ms = 0.0;

@@ -17,7 +17,7 @@ namespace arref::cli {
 // Exit codes a script can rely on (also in README.md).
 enum ExitCode : int {
   kExitOk = 0,
-  kExitRegistrationFailed = 1,  // ran, but the result is unusable (reserved for quality gating)
+  kExitRegistrationFailed = 1,  // ran, but the result has status FAILED (no usable pose)
   kExitUsage = 2,               // bad command line
   kExitBadInput = 3,            // a named file or value is missing or malformed
   kExitCannotRun = 4,           // valid input that cannot be processed (e.g. nothing near the seed)

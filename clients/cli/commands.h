@@ -8,5 +8,6 @@ namespace arref::cli {
 void AddSimulateCommand(CLI::App& app, int* exit_code);
 void AddRegisterCommand(CLI::App& app, int* exit_code);
 void AddDemoCommand(CLI::App& app, int* exit_code);
+void AddBenchCommand(CLI::App& app, int* exit_code);
 
 }  // namespace arref::cli

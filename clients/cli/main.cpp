@@ -14,15 +14,18 @@ int main(int argc, char** argv) {
 
   CLI::App app{"arref: reference a robot arm to a head-mounted display's spatial mesh"};
   app.require_subcommand(1);
-  std::string log_level = "info";
-  app.add_option("--log-level", log_level, "trace, debug, info, warn, error, off")
+  std::string log_level;
+  app.add_option("--log-level", log_level, "trace, debug, info, warn, error, off (default: SPDLOG_LEVEL or info)")
       ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error", "off"}));
-  app.parse_complete_callback([&] { spdlog::set_level(spdlog::level::from_str(log_level)); });
+  app.parse_complete_callback([&] {
+    if (!log_level.empty()) spdlog::set_level(spdlog::level::from_str(log_level));
+  });
 
   int exit_code = arref::cli::kExitOk;
   arref::cli::AddSimulateCommand(app, &exit_code);
   arref::cli::AddRegisterCommand(app, &exit_code);
   arref::cli::AddDemoCommand(app, &exit_code);
+  arref::cli::AddBenchCommand(app, &exit_code);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

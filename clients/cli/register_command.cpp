@@ -10,6 +10,7 @@
 #include "arref/spatial_mesh.h"
 #include "cli_common.h"
 #include "commands.h"
+#include "global_options.h"
 
 namespace arref::cli {
 namespace {
@@ -21,7 +22,7 @@ struct RegisterArgs {
   int seed_index = 0;
   std::string frame = "ros";
   std::string truth;
-  std::string method = "pcl-icp";
+  std::string method = MethodName(RegistrationOptions{}.method);
   RegistrationOptions options;
   double mls_radius = 0;
   std::string mls_upsampling = "none";
@@ -76,7 +77,8 @@ Result<Inputs> ReadInputs(const RegisterArgs& args, FrameConvention frame) {
 
 nlohmann::json ReportJson(const RegistrationReport& r, FrameConvention frame) {
   nlohmann::json j;
-  j["status"] = "OK";
+  j["status"] = ResultStatusName(r.status);
+  if (!r.status_reason.empty()) j["status_reason"] = r.status_reason;
   j["method"] = r.method;
   j["stages_run"] = r.stages_run;
   j["T_world_base"] = MatrixToJson(r.T_world_base);
@@ -85,6 +87,10 @@ nlohmann::json ReportJson(const RegistrationReport& r, FrameConvention frame) {
   j["position"] = {pose[0], pose[1], pose[2]};
   j["orientation"] = {pose[3], pose[4], pose[5], pose[6]};
   j["rms_m"] = r.rms_m;
+  j["rms_points"] = r.rms_points;
+  if (r.score >= 0) j["score"] = r.score;
+  if (r.margin >= 0) j["margin"] = r.margin;
+  if (r.hypotheses > 0) j["hypotheses"] = r.hypotheses;
   j["inlier_fraction"] = r.inlier_fraction;
   j["iterations"] = r.iterations;
   j["converged"] = r.converged;
@@ -102,7 +108,9 @@ void PrintHuman(const nlohmann::json& j) {
   for (int r = 0; r < 4; ++r)
     std::printf("  % .5f % .5f % .5f % .5f\n", T[4 * r].get<double>(), T[4 * r + 1].get<double>(),
                 T[4 * r + 2].get<double>(), T[4 * r + 3].get<double>());
-  std::printf("rms %.2f mm, inliers %.1f %%, %d iterations, %.0f ms\n", j["rms_m"].get<double>() * 1e3,
+  std::printf("status %s\n", j["status"].get<std::string>().c_str());
+  std::printf("rms %.2f mm (%s model points), inliers %.1f %%, %d iterations, %.0f ms\n", j["rms_m"].get<double>() * 1e3,
+              j["rms_points"].get<std::string>().c_str(),
               j["inlier_fraction"].get<double>() * 100, j["iterations"].get<int>(), j["timings_ms"]["total"].get<double>());
   if (j.contains("add_m"))
     std::printf("vs truth: ADD %.2f mm, translation %.2f mm, rotation %.2f deg\n", j["add_m"].get<double>() * 1e3,
@@ -154,7 +162,13 @@ int Run(const RegisterArgs& args) {
     std::cout << j.dump(2) << std::endl;
   else
     PrintHuman(j);
-  return kExitOk;
+  return report->status == ResultStatus::kFailed ? kExitRegistrationFailed : kExitOk;
+}
+
+std::string MethodHelp() {
+  std::string help = "Registration method:";
+  for (const auto& m : Methods()) help += std::string("\n  ") + m.name + ": " + m.description;
+  return help;
 }
 
 }  // namespace
@@ -169,7 +183,7 @@ void AddRegisterCommand(CLI::App& app, int* exit_code) {
   cmd->add_option("--frame", args->frame, "Convention of seed, mesh and output: ros or unity")
       ->check(CLI::IsMember({"ros", "unity"}))->capture_default_str();
   cmd->add_option("--truth", args->truth, "Ground truth JSON (from arref simulate): adds the true error");
-  cmd->add_option("--method", args->method, "Registration method: pcl-icp, pcl-icp-plane")->capture_default_str();
+  cmd->add_option("--method", args->method, MethodHelp())->capture_default_str();
   RegistrationOptions& o = args->options;
   cmd->add_option("--crop-radius", o.crop_radius_m, "Crop the scene to this radius around the seed, m")->capture_default_str();
   cmd->add_option("--samples", o.scene_samples, "Scene surface samples")->capture_default_str();
@@ -187,6 +201,7 @@ void AddRegisterCommand(CLI::App& app, int* exit_code) {
                   "none, sample-local-plane, random-uniform-density, voxel-grid-dilation");
   cmd->add_option("--mls-upsampling-radius", args->mls_upsampling_radius, "MLS upsampling radius, m");
   cmd->add_option("--mls-upsampling-step", args->mls_upsampling_step, "MLS upsampling step, m");
+  AddGlobalMethodOptions(*cmd, o);
   cmd->add_flag("--json", args->json, "Print the result as JSON on stdout");
   cmd->callback([args, exit_code] { *exit_code = Run(*args); });
 }

@@ -12,7 +12,7 @@
 #include <string>
 #include <tuple>
 
-#include "raycaster.h"
+#include "arref/raycaster.h"
 #include "scene_builder.h"
 #include "tsdf.h"
 

@@ -10,7 +10,7 @@
 
 #include "arref/geometry.h"
 #include "arref/status.h"
-#include "raycaster.h"
+#include "arref/raycaster.h"
 
 namespace arref::sim {
 

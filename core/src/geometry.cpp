@@ -32,6 +32,17 @@ void PointCloud::Transform(const Iso3& T_new_old) {
   for (auto& n : normals) n = R * n;
 }
 
+PointCloud PointCloud::Subset(const std::vector<std::uint32_t>& keep) const {
+  PointCloud out;
+  out.points.reserve(keep.size());
+  for (auto i : keep) out.points.push_back(points[i]);
+  if (has_normals())
+    for (auto i : keep) out.normals.push_back(normals[i]);
+  if (has_visibility())
+    for (auto i : keep) out.visibility.push_back(visibility[i]);
+  return out;
+}
+
 Aabb BoundsOf(const std::vector<Vec3f>& points) {
   Aabb box;
   for (const auto& p : points) box.Extend(p);

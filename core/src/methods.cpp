@@ -2,11 +2,15 @@
 #include <stdexcept>
 
 #include "arref/registration.h"
+#include "global_registration.h"
 
 namespace arref {
 
 const std::vector<MethodInfo>& Methods() {
   static const std::vector<MethodInfo> kMethods = {
+      {Method::kArrefIcp, "arref-icp",
+       "arref's default: 4-DoF yaw/height/position search around the seed, point-to-plane ICP on visible model points",
+       RegisterArrefIcp, true},
       {Method::kPclIcp, "pcl-icp", "PCL point-to-point ICP from the seed (the paper's method)",
        [](const MethodInput& in) {
          return RegisterPclIcp(in.model_base, in.scene_world, in.T_world_seed, in.options.icp, false);
@@ -14,6 +18,30 @@ const std::vector<MethodInfo>& Methods() {
       {Method::kPclIcpPlane, "pcl-icp-plane", "PCL point-to-plane ICP from the seed",
        [](const MethodInput& in) {
          return RegisterPclIcp(in.model_base, in.scene_world, in.T_world_seed, in.options.icp, true);
+       }},
+      {Method::kSuper4pcs, "super4pcs", "the paper's segmentation, Super4PCS (Mellado et al. 2014), then PCL ICP",
+       [](const MethodInput& in) {
+         return RunGlobalThenIcp(in, "super4pcs", [&](const PointCloud& model, const PointCloud& scene) {
+           return AlignSuper4pcs(model, scene, in.options.super4pcs);
+         });
+       }},
+      {Method::kPcl4pcs, "pcl-4pcs", "segmentation, PCL 4PCS (FPCSInitialAlignment), then PCL ICP",
+       [](const MethodInput& in) {
+         return RunGlobalThenIcp(in, "pcl-4pcs", [&](const PointCloud& model, const PointCloud& scene) {
+           return AlignPcl4pcs(model, scene, in.options.pcl_4pcs, false);
+         });
+       }},
+      {Method::kPclK4pcs, "pcl-k4pcs", "segmentation, PCL Keypoint-4PCS (KFPCSInitialAlignment), then PCL ICP",
+       [](const MethodInput& in) {
+         return RunGlobalThenIcp(in, "pcl-k4pcs", [&](const PointCloud& model, const PointCloud& scene) {
+           return AlignPcl4pcs(model, scene, in.options.pcl_4pcs, true);
+         });
+       }},
+      {Method::kFpfhRansac, "fpfh-ransac", "segmentation, FPFH features + RANSAC with prerejection (PCL), then PCL ICP",
+       [](const MethodInput& in) {
+         return RunGlobalThenIcp(in, "fpfh-ransac", [&](const PointCloud& model, const PointCloud& scene) {
+           return AlignFpfhRansac(model, scene, in.options.fpfh_ransac);
+         });
        }},
   };
   return kMethods;

@@ -39,4 +39,39 @@ bool PointIndex::Nearest(const Vec3f& query, std::uint32_t* index, float* sq_dis
   return true;
 }
 
+namespace {
+// A nanoflann result set that starts with a finite worst distance.
+class BoundedNearest {
+ public:
+  explicit BoundedNearest(float max_sq) : worst_(max_sq) {}
+  bool full() const { return true; }
+  bool addPoint(float sq, std::uint32_t index) {
+    if (sq < worst_) {
+      worst_ = sq;
+      index_ = index;
+      found_ = true;
+    }
+    return true;
+  }
+  float worstDist() const { return worst_; }
+  bool found() const { return found_; }
+  std::uint32_t index() const { return index_; }
+
+ private:
+  float worst_;
+  std::uint32_t index_ = 0;
+  bool found_ = false;
+};
+}  // namespace
+
+bool PointIndex::NearestWithin(const Vec3f& query, float max_sq_dist, std::uint32_t* index, float* sq_dist) const {
+  if (impl_->points.empty()) return false;
+  BoundedNearest result(max_sq_dist);
+  impl_->tree.findNeighbors(result, query.data(), nanoflann::SearchParams());
+  if (!result.found()) return false;
+  *index = result.index();
+  *sq_dist = result.worstDist();
+  return true;
+}
+
 }  // namespace arref

@@ -5,6 +5,7 @@
 #include <chrono>
 
 #include "arref/metrics.h"
+#include "arref/model_visibility.h"
 #include "arref/nearest_neighbor.h"
 #include "arref/spatial_mesh.h"
 
@@ -44,6 +45,28 @@ Status CheckOptions(const RegistrationOptions& o) {
   return Status::Ok();
 }
 
+// The points a result is measured on: the ones the method fits.
+std::vector<Vec3f> MeasuredPoints(const PointCloud& model, bool visible_only) {
+  if (!visible_only || !model.has_visibility()) return model.points;
+  std::vector<Vec3f> out;
+  for (std::size_t i = 0; i < model.size(); ++i)
+    if (model.visibility[i] > 0) out.push_back(model.points[i]);
+  return out.size() >= 50 ? out : model.points;
+}
+
+void AssignStatus(const ConfidenceThresholds& t, RegistrationReport* r) {
+  std::string why;
+  if (r->inlier_fraction < t.ok_min_inlier_fraction)
+    why = fmt::format("only {:.0f} % of visible model points lie on the scene", r->inlier_fraction * 100);
+  else if (r->margin >= 0 && r->margin < t.ok_min_margin)
+    why = fmt::format("ambiguous: another pose fits almost as well (margin {:.3f})", r->margin);
+  r->status_reason = why;
+  if (why.empty())
+    r->status = ResultStatus::kOk;
+  else
+    r->status = r->inlier_fraction < t.failed_below_inlier_fraction ? ResultStatus::kFailed : ResultStatus::kLowConfidence;
+}
+
 }  // namespace
 
 double RegistrationReport::total_ms() const {
@@ -57,7 +80,20 @@ Result<PointCloud> SampleRobot(const RobotModel& robot, const JointValues& joint
   auto mesh = robot.PosedMesh(joints);
   if (!mesh.ok()) return mesh.status();
   if (mesh->empty()) return Status::FailedPrecondition("robot '" + robot.name() + "' has no geometry to register");
-  return SampleSurface(*mesh, samples, seed);
+  PointCloud cloud = SampleSurface(*mesh, samples, seed);
+  auto visibility = ModelVisibility(*mesh, cloud);
+  if (!visibility.ok()) return visibility.status().WithContext("robot '" + robot.name() + "'");
+  cloud.visibility = std::move(*visibility);
+  return cloud;
+}
+
+const char* ResultStatusName(ResultStatus status) {
+  switch (status) {
+    case ResultStatus::kOk: return "OK";
+    case ResultStatus::kLowConfidence: return "LOW_CONFIDENCE";
+    case ResultStatus::kFailed: return "FAILED";
+  }
+  return "FAILED";
 }
 
 Result<RegistrationReport> RegisterScene(const PointCloud& model_base, const TriangleMesh& scene_world,
@@ -104,13 +140,23 @@ Result<RegistrationReport> RegisterScene(const PointCloud& model_base, const Tri
   report.T_world_base = out->T_world_base;
   report.iterations = out->iterations;
   report.converged = out->converged;
+  report.score = out->score;
+  report.margin = out->margin;
+  report.hypotheses = out->hypotheses;
   report.stages_run.insert(report.stages_run.end(), out->stages.begin(), out->stages.end());
 
   clock.Start("evaluate", 0.9);
   const PointIndex scene_index(scene.points);
-  const FitQuality fit = MeasureFit(model_base.points, report.T_world_base, scene_index, options.inlier_threshold_m);
+  const bool visible_only = MethodInfoOf(options.method).visible_model_only && model_base.has_visibility();
+  report.rms_points = visible_only ? "visible" : "all";
+  const FitQuality fit = MeasureFit(MeasuredPoints(model_base, visible_only), report.T_world_base, scene_index,
+                                    options.inlier_threshold_m);
   report.rms_m = fit.rms_m;
-  report.inlier_fraction = fit.inlier_fraction;
+  // Confidence rests on the visible points whatever the method, so that statuses compare.
+  report.inlier_fraction = visible_only ? fit.inlier_fraction
+                                        : MeasureFit(MeasuredPoints(model_base, true), report.T_world_base, scene_index,
+                                                     options.inlier_threshold_m).inlier_fraction;
+  AssignStatus(options.confidence, &report);
   clock.Stop();
   if (progress) progress("done", 1.0);
   return report;

@@ -27,14 +27,20 @@ struct TriangleMesh {
   double SurfaceArea() const;
 };
 
-// Points with optional per-point normals (normals empty, or same size as points).
+// Points with optional per-point normals and weights (each empty, or the size of points).
 struct PointCloud {
   std::vector<Vec3f> points;
   std::vector<Vec3f> normals;
+  // For a robot sample: the fraction of human eye positions around the robot that see the
+  // point (0 = never visible: underside, enclosed, against the floor). See model_visibility.h.
+  std::vector<float> visibility;
 
   std::size_t size() const { return points.size(); }
   bool empty() const { return points.empty(); }
   bool has_normals() const { return !normals.empty() && normals.size() == points.size(); }
+  bool has_visibility() const { return !visibility.empty() && visibility.size() == points.size(); }
+  // The points whose index is in `keep`, with their attributes.
+  PointCloud Subset(const std::vector<std::uint32_t>& keep) const;
   void Transform(const Iso3& T_new_old);
 };
 

@@ -20,6 +20,9 @@ class PointIndex {
   const std::vector<Vec3f>& points() const;
   // False only for an empty index. sq_dist is the squared Euclidean distance.
   bool Nearest(const Vec3f& query, std::uint32_t* index, float* sq_dist) const;
+  // The nearest point closer than sqrt(max_sq_dist), or false. Much faster than Nearest when
+  // the query is far from every point: the bound prunes the tree from the start.
+  bool NearestWithin(const Vec3f& query, float max_sq_dist, std::uint32_t* index, float* sq_dist) const;
 
  private:
   struct Impl;

@@ -21,13 +21,23 @@ struct StageTime {
   double ms = 0.0;
 };
 
+// How far a result can be trusted (ConfidenceThresholds in registration.h).
+enum class ResultStatus { kOk, kLowConfidence, kFailed };
+const char* ResultStatusName(ResultStatus status);  // "OK", "LOW_CONFIDENCE", "FAILED"
+
 struct RegistrationReport {
+  ResultStatus status = ResultStatus::kOk;
+  std::string status_reason;        // why it is not OK
   Iso3 T_world_base = Iso3::Identity();
   Iso3 T_world_seed = Iso3::Identity();
   std::string method;
   std::vector<std::string> stages_run;
-  double rms_m = 0.0;
-  double inlier_fraction = 0.0;
+  double rms_m = 0.0;                // the paper's metric over the points named by rms_points
+  std::string rms_points = "all";   // "all" model points, or "visible" ones (those the method fits)
+  double inlier_fraction = 0.0;     // visible model points within inlier_threshold_m of the scene
+  double score = -1.0;              // method's own ranking score and ambiguity margin (-1: none)
+  double margin = -1.0;
+  int hypotheses = 0;
   int iterations = 0;
   bool converged = false;
   std::size_t scene_triangles = 0;  // after cropping
@@ -40,7 +50,8 @@ struct RegistrationReport {
 // Called with a stage name and overall fraction done in [0, 1].
 using ProgressFn = std::function<void(std::string_view stage, double fraction)>;
 
-// Robot surface points in its base frame, posed by joints (model side, reusable across requests).
+// Robot surface points with normals in its base frame, posed by joints, with the visibility
+// of each point (model_visibility.h). Model side: reusable across requests.
 Result<PointCloud> SampleRobot(const RobotModel& robot, const JointValues& joints, std::size_t samples,
                                std::uint64_t seed);
 

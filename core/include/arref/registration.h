@@ -21,8 +21,81 @@ struct IcpParams {
   double euclidean_fitness_epsilon = 1e-8;
 };
 
+// arref's own method (arref_icp.cpp): a gravity-aligned 4-DoF search around the seed (yaw
+// over the full circle, a few heights, a position grid when needed), point-to-plane ICP on
+// the model points a person can see, and an ambiguity margin.
+struct ArrefIcpParams {
+  int yaw_hypotheses = 12;
+  std::vector<double> height_offsets_m = {0.0, -0.2};  // seeds sit at or above the base
+  double position_step_m = 0.3;    // the expanded search's grid step around the seed
+  int position_steps = 1;          // grid of (2 * steps + 1)^2 positions
+  double expand_below_score = 0.35;  // widen the search when the best coarse score is lower
+  std::size_t coarse_points = 400;
+  std::size_t fine_points = 3000;
+  int refine_top = 2;
+  bool final_six_dof = true;       // a last 6-DoF step absorbs small tilt of the headset's world
+};
+
+// Turns fit figures into a status (calibrated with `arref bench`, see docs/results.md). The
+// paper's RMS is not used: it is 26-50 mm even at the true pose on headset meshes, because part
+// of the robot is never seen (domain notes, lesson 3).
+struct ConfidenceThresholds {
+  double ok_min_inlier_fraction = 0.35;  // visible model points within inlier_threshold_m of the scene
+  double ok_min_margin = 0.05;           // score lead over the best distinct alternative pose
+  double failed_below_inlier_fraction = 0.15;
+};
+
+// The paper's segmentation before a global method (Puljiz et al. 2019, Sec. IV-B): remove
+// large planes (floor, walls, table top) with RANSAC, cluster the rest (Euclidean), keep the
+// cluster nearest the seed. A kept part much wider than the robot means the robot touches
+// other objects (e.g. a table): reported as an error, not registered.
+struct SegmentationParams {
+  bool enabled = true;
+  double plane_distance_m = 0.02;     // RANSAC plane inlier band
+  double min_plane_fraction = 0.08;   // a plane is "large" with at least this share of the points
+  int max_planes = 4;
+  double cluster_tolerance_m = 0.05;  // Euclidean clustering: neighbour distance
+  std::size_t min_cluster_points = 20;
+  double seed_radius_m = 0.35;        // keep the cluster nearest the seed's vertical axis, if this close
+  double max_extent_ratio = 1.5;      // kept width > ratio x robot width: robot touches something
+};
+
+// Super4PCS (Mellado, Aiger, Mitra, SGP 2014). Lengths in metres; 0 means derive from the
+// model's size (users mostly fail on these scales).
+struct Super4pcsParams {
+  double overlap = 0.6;            // expected share of the (segmented) scene that is robot
+  double delta_m = 0.0;            // accuracy; 0: 1.5 % of the model diagonal, clamped to [1, 3] cm
+  std::size_t sample_count = 500;  // points drawn from each cloud for the search
+  int max_bases = 300;             // iterations (bases tried)
+  double max_time_s = 5.0;
+  double max_tilt_deg = 15.0;      // the headset knows gravity: reject tilted candidates (180: off)
+  double terminate_lcp = 0.85;     // stop when this share of the scene sample is matched
+  std::uint64_t rng_seed = 1;
+};
+
+// PCL's 4PCS (FPCSInitialAlignment) and Keypoint-4PCS (KFPCSInitialAlignment).
+struct Pcl4pcsParams {
+  double overlap = 0.6;
+  double delta_m = 0.02;
+  int sample_count = 500;
+  double voxel_m = 0.03;  // both clouds are voxel-downsampled first (K-4PCS: these are its keypoints)
+  int max_time_s = 5;
+};
+
+// FPFH features (Rusu et al. 2009) + RANSAC with prerejection (Buch et al. 2013), through PCL.
+struct FpfhRansacParams {
+  double voxel_m = 0.025;
+  double normal_radius_m = 0.06;
+  double feature_radius_m = 0.12;
+  int max_iterations = 20000;
+  int correspondence_randomness = 5;
+  double similarity_threshold = 0.85;  // edge-length ratio of the prerejection
+  double max_correspondence_m = 0.04;
+  double inlier_fraction = 0.2;
+};
+
 // One registry entry per value; the registry (methods.cpp) says which are available.
-enum class Method { kPclIcp, kPclIcpPlane };
+enum class Method { kPclIcp, kPclIcpPlane, kSuper4pcs, kPcl4pcs, kPclK4pcs, kFpfhRansac, kArrefIcp };
 
 // Everything a request may tune. Method-specific parameter structs live here too.
 struct RegistrationOptions {
@@ -31,8 +104,14 @@ struct RegistrationOptions {
   std::size_t model_samples = 10000;
   std::optional<MlsOptions> mls;      // the paper's "MLS method" (off by default, as its best)
   double voxel_leaf_m = 0.0;          // optional voxel downsampling of the scene sample
-  Method method = Method::kPclIcp;
+  Method method = Method::kArrefIcp;
   IcpParams icp;
+  SegmentationParams segmentation;  // global methods only
+  Super4pcsParams super4pcs;
+  Pcl4pcsParams pcl_4pcs;           // pcl-4pcs and pcl-k4pcs
+  FpfhRansacParams fpfh_ransac;
+  ArrefIcpParams arref_icp;
+  ConfidenceThresholds confidence;
   double inlier_threshold_m = 0.02;
   std::uint64_t sample_seed = 1;      // sampling is deterministic for a seed
 };
@@ -42,6 +121,11 @@ struct RegistrationOutput {
   int iterations = 0;
   bool converged = false;
   std::vector<std::string> stages;  // which steps ran, e.g. {"pcl-icp"}
+  // Methods that rank several candidate poses report the winner's score and its lead over
+  // the best distinct runner-up (both as inlier fractions); negative when not applicable.
+  double score = -1.0;
+  double margin = -1.0;
+  int hypotheses = 0;
 };
 
 // What a method gets: model points in the robot base frame, scene points in world, the seed.
@@ -58,6 +142,7 @@ struct MethodInfo {
   const char* name;
   const char* description;
   MethodFn run;
+  bool visible_model_only = false;  // fits (and so is measured on) the visible model points only
 };
 const std::vector<MethodInfo>& Methods();
 const MethodInfo& MethodInfoOf(Method method);
@@ -65,6 +150,8 @@ const MethodInfo& MethodInfoOf(Method method);
 Result<Method> ParseMethod(const std::string& name);
 const char* MethodName(Method method);
 std::vector<std::string> MethodNames();
+
+Result<RegistrationOutput> RegisterArrefIcp(const MethodInput& input);
 
 // ICP through PCL (point-to-point, or point-to-plane with normals on both clouds).
 Result<RegistrationOutput> RegisterPclIcp(const PointCloud& model_base, const PointCloud& scene_world,

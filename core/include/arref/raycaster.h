@@ -7,7 +7,7 @@
 #include "arref/geometry.h"
 #include "arref/status.h"
 
-namespace arref::sim {
+namespace arref {
 
 // Pinhole camera in the optical convention: z forward, x right, y down. Pixel (u, v) covers
 // [u, u+1) x [v, v+1); its ray goes through the pixel centre.
@@ -43,4 +43,4 @@ class RayCaster {
   std::unique_ptr<Impl> impl_;
 };
 
-}  // namespace arref::sim
+}  // namespace arref

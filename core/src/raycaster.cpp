@@ -1,4 +1,4 @@
-#include "raycaster.h"
+#include "arref/raycaster.h"
 
 #include <embree3/rtcore.h>
 #include <spdlog/spdlog.h>
@@ -9,7 +9,7 @@
 #include <numbers>
 #include <string>
 
-namespace arref::sim {
+namespace arref {
 
 PinholeCamera PinholeCamera::FromFov(int width, int height, double fov_horizontal_deg) {
   PinholeCamera c;
@@ -65,7 +65,7 @@ Result<RayCaster> RayCaster::Create(const TriangleMesh& mesh) {
   if (const RTCError err = rtcGetDeviceError(impl->device); err != RTC_ERROR_NONE)
     return Status::Internal("ray casting: Embree error " + std::to_string(static_cast<int>(err)) +
                             " building a scene of " + std::to_string(mesh.triangles.size()) + " triangles");
-  spdlog::debug("sim: Embree scene with {} triangles", mesh.triangles.size());
+  spdlog::debug("Embree scene with {} triangles", mesh.triangles.size());
   return RayCaster(std::move(impl));
 }
 
@@ -97,4 +97,4 @@ RangeImage RayCaster::Render(const PinholeCamera& camera, const Iso3& T_scene_ca
   return range;
 }
 
-}  // namespace arref::sim
+}  // namespace arref

@@ -1,0 +1,90 @@
+// `arref bench`: the paper's experiments (Puljiz et al. 2019, Sec. V) on simulated cells with
+// ground truth. Cells and runs, statistics, the three experiments and the report.
+#pragma once
+
+#include <map>
+#include <string>
+#include <vector>
+
+#include "arref/pipeline.h"
+#include "arref/sim/cell_simulator.h"
+
+namespace arref::bench {
+
+constexpr double kSuccessAddM = 0.010;  // success = ADD <= 10 mm
+
+struct Config {
+  std::vector<std::string> methods;          // swept (Tables I, II)
+  std::vector<std::string> perturb_methods;  // Table III
+  std::vector<std::string> scene_methods;    // every kind of scene
+  std::string out_dir;
+  bool quick = false;
+  bool big = true;  // also the paper's "big" configuration
+  int jobs = 1;
+  std::uint64_t rng_seed = 1;
+};
+
+// A simulated cell with everything a run needs.
+struct Cell {
+  std::string kind;  // default, near-table, clutter, second-robot
+  std::string size;  // small, big
+  int index = 0;
+  sim::SimulatedCell sim;
+  TriangleMesh scene_world;
+  PointCloud model_base;
+};
+
+// One registration against ground truth.
+struct Run {
+  std::string experiment, method, size, params, scene_kind;
+  int cell = 0, seed = 0;
+  double seed_yaw_deg = 0;        // Table III perturbation
+  Vec3 seed_offset_m = Vec3::Zero();
+  std::string perturbation;       // "", "none", "rotation", "translation"
+  bool ok = false;
+  std::string error;
+  double rms_m = 0, add_m = 0, translation_m = 0, rotation_deg = 0;
+  std::map<std::string, double> stage_ms;
+  double total_ms = 0;
+  double peak_mb = 0;
+};
+
+// A run to do: which cell, seed pose and options.
+struct Job {
+  Run run;  // labels filled in; results filled by Execute
+  const Cell* cell = nullptr;
+  Iso3 T_world_seed = Iso3::Identity();
+  RegistrationOptions options;
+  bool seed_only = false;  // measure the seed itself (the paper's "user guess" row)
+};
+
+Result<std::vector<Cell>> MakeCells(const RobotModel& robot, const std::vector<std::string>& kinds, const std::string& size,
+                                    int cells_per_kind, int seeds_per_cell, std::uint64_t rng_seed);
+// Runs every job (in parallel when jobs > 1) and returns their runs in order.
+std::vector<Run> Execute(std::vector<Job>& jobs, int parallel_jobs);
+
+// Statistics of a group of runs: one row of a table.
+struct Row {
+  std::map<std::string, std::string> labels;  // e.g. method, size, params
+  std::size_t runs = 0, errors = 0, segmentation_flags = 0;
+  double success = 0;  // share of all runs with ADD <= 10 mm
+  double rms_mean_mm = 0, rms_min_mm = 0, rms_max_mm = 0, rms_std_mm = 0;
+  double add_median_mm = 0, add_p95_mm = 0, translation_median_mm = 0, rotation_median_deg = 0;
+  double register_median_ms = 0, total_median_ms = 0, mls_median_ms = 0;
+  double peak_mb = 0;
+};
+Row Summarise(const std::vector<const Run*>& runs, std::map<std::string, std::string> labels);
+
+// The experiments: each returns its runs (every one also goes to runs.csv).
+struct Tables {
+  std::vector<Row> table1, table2, table3, scenes;
+  std::vector<Run> runs;
+  std::vector<std::string> notes;
+};
+Status SweepExperiment(const RobotModel& robot, const Config& config, Tables* tables);      // Tables I, II
+Status PerturbExperiment(const RobotModel& robot, const Config& config, Tables* tables);    // Table III + plots
+Status ScenesExperiment(const RobotModel& robot, const Config& config, Tables* tables);     // methods x scene kinds
+
+Status WriteReport(const Config& config, const Tables& tables, const std::string& command_line);
+
+}  // namespace arref::bench

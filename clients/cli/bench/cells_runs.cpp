@@ -1,0 +1,177 @@
+// Simulated cells, running registrations against ground truth, and per-row statistics.
+#include <spdlog/spdlog.h>
+#include <sys/resource.h>
+#include <tbb/global_control.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <fstream>
+#include <numeric>
+
+#include "arref/metrics.h"
+#include "arref/nearest_neighbor.h"
+#include "arref/sampling.h"
+#include "arref/spatial_mesh.h"
+#include "bench.h"
+
+namespace arref::bench {
+namespace {
+
+Result<sim::SimOptions> OptionsFor(const std::string& kind, const std::string& size) {
+  sim::SimOptions o = size == "big" ? sim::BigPreset() : sim::SmallPreset();
+  if (kind == "near-table") o.cell.table_gap_m = 0.05;  // the paper's failure case for Super4PCS
+  else if (kind == "clutter") o.cell.clutter_boxes = 12;
+  else if (kind == "second-robot") o.cell.second_robot = true;
+  else if (kind != "default") return Status::InvalidArgument("unknown bench scene kind '" + kind + "'");
+  return o;
+}
+
+// A varied but reproducible arm pose: every actuated joint within +-0.5 rad of zero.
+JointValues RandomJoints(const RobotModel& robot, std::mt19937_64& rng) {
+  std::uniform_real_distribution<double> u(-0.5, 0.5);
+  JointValues joints;
+  for (const auto& j : robot.ActuatedJoints()) {
+    double v = u(rng);
+    if (j.has_limits) v = std::clamp(v, j.lower, j.upper);
+    joints[j.name] = v;
+  }
+  return joints;
+}
+
+// Peak resident memory since the last reset, in MB (Linux: VmHWM; reset via clear_refs).
+double PeakMb() {
+  std::ifstream status("/proc/self/status");
+  for (std::string line; std::getline(status, line);)
+    if (line.rfind("VmHWM:", 0) == 0) return std::stod(line.substr(6)) / 1024.0;
+  rusage usage{};
+  getrusage(RUSAGE_SELF, &usage);
+  return static_cast<double>(usage.ru_maxrss) / 1024.0;
+}
+void ResetPeak() { std::ofstream("/proc/self/clear_refs") << "5"; }
+
+void ExecuteOne(Job& job) {
+  Run& run = job.run;
+  const Cell& cell = *job.cell;
+  const Iso3& truth = cell.sim.T_world_base;
+  if (job.seed_only) {
+    // The user's guess as the answer: RMS over the same crop and sample as a registration.
+    const TriangleMesh cropped = CropToSphere(cell.scene_world, job.T_world_seed.translation(), job.options.crop_radius_m);
+    const PointIndex index(SampleSurface(cropped, job.options.scene_samples, job.options.sample_seed).points);
+    run.rms_m = MeasureFit(cell.model_base.points, job.T_world_seed, index, job.options.inlier_threshold_m).rms_m;
+    const PoseError e = ComparePoses(job.T_world_seed, truth, cell.model_base.points);
+    run.ok = true, run.add_m = e.add_m, run.translation_m = e.translation_m, run.rotation_deg = e.rotation_deg;
+    return;
+  }
+  auto report = RegisterScene(cell.model_base, cell.scene_world, job.T_world_seed, job.options);
+  if (!report.ok()) {
+    run.error = report.status().ToString();
+    return;
+  }
+  const PoseError e = ComparePoses(report->T_world_base, truth, cell.model_base.points);
+  run.ok = true;
+  run.rms_m = report->rms_m, run.add_m = e.add_m, run.translation_m = e.translation_m, run.rotation_deg = e.rotation_deg;
+  for (const auto& t : report->timings) run.stage_ms[t.stage] += t.ms;
+  run.total_ms = report->total_ms();
+}
+
+double Quantile(std::vector<double> v, double q) {
+  if (v.empty()) return std::nan("");
+  std::sort(v.begin(), v.end());
+  const double pos = q * static_cast<double>(v.size() - 1);
+  const auto lo = static_cast<std::size_t>(std::floor(pos));
+  const std::size_t hi = std::min(lo + 1, v.size() - 1);
+  return v[lo] + (pos - static_cast<double>(lo)) * (v[hi] - v[lo]);
+}
+
+}  // namespace
+
+Result<std::vector<Cell>> MakeCells(const RobotModel& robot, const std::vector<std::string>& kinds, const std::string& size,
+                                    int cells_per_kind, int seeds_per_cell, std::uint64_t rng_seed) {
+  std::vector<Cell> cells;
+  const RegistrationOptions defaults;
+  for (const auto& kind : kinds) {
+    for (int i = 0; i < cells_per_kind; ++i) {
+      auto options = OptionsFor(kind, size);
+      if (!options.ok()) return options.status();
+      // One cell seed per (kind, index): the same cells at every size and in every experiment.
+      const std::uint64_t seed = rng_seed * 1000 + static_cast<std::uint64_t>(i) * 17 +
+                                 static_cast<std::uint64_t>(&kind - kinds.data()) * 101;
+      std::mt19937_64 rng(seed);
+      options->cell.joints = RandomJoints(robot, rng);
+      options->seed_count = seeds_per_cell;
+      auto sim = sim::SimulateCell(robot, *options, seed);
+      if (!sim.ok()) return sim.status().WithContext("bench cell " + kind + " " + std::to_string(i));
+      Cell cell{kind, size, i, std::move(*sim), {}, {}};
+      SpatialMesh map;
+      for (auto& s : cell.sim.surfaces) ARREF_RETURN_IF_ERROR(map.Upsert(s));
+      cell.scene_world = map.MergedWorld();
+      auto model = SampleRobot(robot, cell.sim.joints, defaults.model_samples, defaults.sample_seed);
+      if (!model.ok()) return model.status();
+      cell.model_base = std::move(*model);
+      spdlog::info("bench: {} cell '{}' #{}: {} triangles", size, kind, i, cell.scene_world.triangles.size());
+      cells.push_back(std::move(cell));
+    }
+  }
+  return cells;
+}
+
+std::vector<Run> Execute(std::vector<Job>& jobs, int parallel_jobs) {
+  std::atomic<std::size_t> done = 0;
+  auto one = [&](std::size_t i) {
+    if (parallel_jobs <= 1) ResetPeak();  // per-run peak only means something when runs do not overlap
+    ExecuteOne(jobs[i]);
+    jobs[i].run.peak_mb = PeakMb();
+    if (const std::size_t n = ++done; n % 50 == 0) spdlog::info("bench: {} of {} runs", n, jobs.size());
+  };
+  if (parallel_jobs <= 1) {
+    for (std::size_t i = 0; i < jobs.size(); ++i) one(i);
+  } else {
+    tbb::global_control limit(tbb::global_control::max_allowed_parallelism, static_cast<std::size_t>(parallel_jobs));
+    tbb::parallel_for(std::size_t{0}, jobs.size(), one);
+  }
+  std::vector<Run> runs;
+  for (auto& j : jobs) {
+    if (!j.run.ok) spdlog::debug("bench: {} {} cell {} seed {}: {}", j.run.experiment, j.run.method, j.run.cell, j.run.seed, j.run.error);
+    runs.push_back(j.run);
+  }
+  return runs;
+}
+
+Row Summarise(const std::vector<const Run*>& runs, std::map<std::string, std::string> labels) {
+  Row row;
+  row.labels = std::move(labels);
+  row.runs = runs.size();
+  std::vector<double> rms, add, translation, rotation, reg, total, mls;
+  std::size_t successes = 0;
+  for (const Run* r : runs) {
+    row.peak_mb = std::max(row.peak_mb, r->peak_mb);
+    if (!r->ok) {
+      ++row.errors;
+      row.segmentation_flags += r->error.find("segmentation") != std::string::npos;
+      continue;
+    }
+    successes += r->add_m <= kSuccessAddM;
+    rms.push_back(r->rms_m * 1e3), add.push_back(r->add_m * 1e3);
+    translation.push_back(r->translation_m * 1e3), rotation.push_back(r->rotation_deg);
+    if (r->stage_ms.count("register")) reg.push_back(r->stage_ms.at("register"));
+    if (r->stage_ms.count("mls")) mls.push_back(r->stage_ms.at("mls"));
+    if (r->total_ms > 0) total.push_back(r->total_ms);
+  }
+  row.success = runs.empty() ? 0 : static_cast<double>(successes) / static_cast<double>(runs.size());
+  if (!rms.empty()) {
+    row.rms_mean_mm = std::accumulate(rms.begin(), rms.end(), 0.0) / static_cast<double>(rms.size());
+    row.rms_min_mm = *std::min_element(rms.begin(), rms.end());
+    row.rms_max_mm = *std::max_element(rms.begin(), rms.end());
+    double sq = 0;
+    for (double v : rms) sq += (v - row.rms_mean_mm) * (v - row.rms_mean_mm);
+    row.rms_std_mm = std::sqrt(sq / static_cast<double>(rms.size()));  // population sigma, as the paper's table
+  }
+  row.add_median_mm = Quantile(add, 0.5), row.add_p95_mm = Quantile(add, 0.95);
+  row.translation_median_mm = Quantile(translation, 0.5), row.rotation_median_deg = Quantile(rotation, 0.5);
+  row.register_median_ms = Quantile(reg, 0.5), row.total_median_ms = Quantile(total, 0.5), row.mls_median_ms = Quantile(mls, 0.5);
+  return row;
+}
+
+}  // namespace arref::bench

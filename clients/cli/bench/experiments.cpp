@@ -1,0 +1,221 @@
+// The paper's experiments (Puljiz et al. 2019, Sec. V), on simulated cells with ground truth:
+// the parameter sweep (Tables I and II), the seed perturbations (Table III and its figure),
+// and every method on each kind of scene (which the paper could not measure).
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+
+#include <cmath>
+#include <numbers>
+
+#include "bench.h"
+
+namespace arref::bench {
+namespace {
+
+const std::vector<std::string> kAllKinds = {"default", "near-table", "clutter", "second-robot"};
+
+struct ParamSet {
+  std::string label;
+  IcpParams icp;
+  std::optional<MlsOptions> mls;
+};
+
+// The paper's ranges: max correspondence distance, max iterations, MLS off or with search
+// radius 0.005 / 0.05 m, with or without upsampling (too heavy for 256,000 points: small only).
+std::vector<ParamSet> SweepSets(bool quick, const std::string& size) {
+  const std::vector<double> distances = quick ? std::vector<double>{0.05, 0.1} : std::vector<double>{0.05, 0.1, 0.2};
+  const std::vector<int> iterations = {50, 500};
+  std::vector<std::pair<std::string, std::optional<MlsOptions>>> mls = {{"off", std::nullopt}};
+  if (!quick) mls.push_back({"0.005", MlsOptions{.search_radius_m = 0.005}});
+  mls.push_back({"0.05", MlsOptions{.search_radius_m = 0.05}});
+  if (!quick && size == "small")
+    mls.push_back({"0.05+upsampling", MlsOptions{.search_radius_m = 0.05,
+                                                 .upsampling = MlsOptions::Upsampling::kSampleLocalPlane,
+                                                 .upsampling_radius_m = 0.02,
+                                                 .upsampling_step_m = 0.01}});
+  std::vector<ParamSet> sets;
+  for (double d : distances)
+    for (int it : iterations)
+      for (const auto& [name, m] : mls) {
+        ParamSet s{fmt::format("dist {:.2f} m, {} it, MLS {}", d, it, name), {}, m};
+        s.icp.max_correspondence_m = d;
+        s.icp.max_iterations = it;
+        sets.push_back(s);
+      }
+  return sets;
+}
+
+RegistrationOptions BaseOptions(const std::string& method, const std::string& size) {
+  RegistrationOptions o;
+  o.method = *ParseMethod(method);  // checked by the command
+  o.scene_samples = size == "big" ? 256000 : 16000;
+  return o;
+}
+
+Run Label(const std::string& experiment, const std::string& method, const std::string& size, const std::string& params,
+          const Cell& cell, int seed) {
+  Run r;
+  r.experiment = experiment, r.method = method, r.size = size, r.params = params;
+  r.scene_kind = cell.kind, r.cell = cell.index, r.seed = seed;
+  return r;
+}
+
+std::vector<const Run*> Select(const std::vector<Run>& runs, const std::function<bool(const Run&)>& keep) {
+  std::vector<const Run*> out;
+  for (const auto& r : runs)
+    if (keep(r)) out.push_back(&r);
+  return out;
+}
+
+void Append(Tables* tables, std::vector<Run> runs) {
+  tables->runs.insert(tables->runs.end(), std::make_move_iterator(runs.begin()), std::make_move_iterator(runs.end()));
+}
+
+Status SweepSize(const RobotModel& robot, const Config& config, const std::string& size, Tables* tables) {
+  const bool small = size == "small";
+  const std::vector<std::string> kinds =
+      config.quick ? std::vector<std::string>{"default", "near-table"}
+                   : (small ? kAllKinds : std::vector<std::string>{"default", "near-table"});
+  const int seeds = config.quick ? 1 : 2;
+  auto cells = MakeCells(robot, kinds, size, 1, seeds, config.rng_seed);
+  if (!cells.ok()) return cells.status();
+  const auto sets = SweepSets(config.quick, size);
+  std::vector<Job> jobs;
+  for (const auto& method : config.methods)
+    for (const auto& set : sets)
+      for (const auto& cell : *cells)
+        for (int s = 0; s < static_cast<int>(cell.sim.seeds.size()); ++s) {
+          Job job;
+          job.cell = &cell;
+          job.T_world_seed = cell.sim.seeds[s];
+          job.options = BaseOptions(method, size);
+          job.options.icp = set.icp;
+          job.options.mls = set.mls;
+          job.run = Label("sweep", method, size, set.label, cell, s);
+          jobs.push_back(job);
+        }
+  spdlog::info("bench: sweep, {} configuration: {} runs", size, jobs.size());
+  const std::vector<Run> runs = Execute(jobs, config.jobs);
+  for (const auto& method : config.methods) {
+    const auto all = Select(runs, [&](const Run& r) { return r.method == method; });
+    tables->table1.push_back(Summarise(all, {{"method", method}, {"size", size}}));
+    // Table II: per parameter set; the best and worst by the paper's RMS, and the best by truth.
+    std::vector<Row> per_set;
+    for (const auto& set : sets)
+      per_set.push_back(Summarise(Select(runs, [&](const Run& r) { return r.method == method && r.params == set.label; }),
+                                  {{"method", method}, {"size", size}, {"params", set.label}}));
+    auto by_rms = [](const Row& a, const Row& b) { return a.rms_mean_mm < b.rms_mean_mm; };
+    auto by_add = [](const Row& a, const Row& b) {
+      return a.success != b.success ? a.success > b.success : a.add_median_mm < b.add_median_mm;
+    };
+    Row best = *std::min_element(per_set.begin(), per_set.end(), by_rms);
+    Row worst = *std::max_element(per_set.begin(), per_set.end(), by_rms);
+    Row truth = *std::min_element(per_set.begin(), per_set.end(), by_add);
+    best.labels["rank"] = "best by RMS", worst.labels["rank"] = "worst by RMS", truth.labels["rank"] = "best by ADD";
+    tables->table2.insert(tables->table2.end(), {best, worst, truth});
+  }
+  Append(tables, runs);
+  return Status::Ok();
+}
+
+// The seed moved as in the paper: rotated about its own vertical axis, or shifted in world.
+Iso3 Rotated(const Iso3& seed, double yaw_deg) {
+  return seed * Iso3(Eigen::AngleAxisd(yaw_deg * std::numbers::pi / 180.0, Vec3::UnitZ()));
+}
+
+std::vector<Job> PerturbJobs(const Cell& cell, int s, const std::string& method, bool quick) {
+  std::vector<Job> jobs;
+  const bool guess = method.empty();  // the user's guess itself, no registration
+  auto add = [&](const Iso3& T, const std::string& kind, double yaw, const Vec3& offset) {
+    Job job;
+    job.cell = &cell;
+    job.T_world_seed = T;
+    job.options = BaseOptions(guess ? "pcl-icp" : method, "small");
+    job.seed_only = guess;
+    job.run = Label("perturb", guess ? "user guess" : method, "small", kind, cell, s);
+    job.run.seed_yaw_deg = yaw, job.run.seed_offset_m = offset, job.run.perturbation = kind;
+    jobs.push_back(job);
+  };
+  const Iso3& seed = cell.sim.seeds[s];
+  const std::vector<int> steps = quick ? std::vector<int>{0, 1, 2, 5, 10} : std::vector<int>{};
+  for (int k = 0; k < 20; ++k)  // 18 degree steps round the circle
+    if (!quick || std::find(steps.begin(), steps.end(), k) != steps.end()) add(Rotated(seed, 18.0 * k), "rotation", 18.0 * k, Vec3::Zero());
+  const std::vector<double> offsets = quick ? std::vector<double>{-0.3, -0.1, 0.1, 0.3}
+                                            : std::vector<double>{-0.5, -0.4, -0.3, -0.2, -0.1, 0.1, 0.2, 0.3, 0.4, 0.5};
+  for (int axis = 0; axis < 3; ++axis)  // a 1 m cube in 0.1 m steps, along each of its axes
+    for (double o : offsets) {
+      Vec3 offset = Vec3::Zero();
+      offset[axis] = o;
+      add(Iso3(Eigen::Translation3d(offset)) * seed, "translation", 0.0, offset);
+    }
+  return jobs;
+}
+
+}  // namespace
+
+Status SweepExperiment(const RobotModel& robot, const Config& config, Tables* tables) {
+  ARREF_RETURN_IF_ERROR(SweepSize(robot, config, "small", tables));
+  if (config.big && !config.quick) ARREF_RETURN_IF_ERROR(SweepSize(robot, config, "big", tables));
+  return Status::Ok();
+}
+
+Status PerturbExperiment(const RobotModel& robot, const Config& config, Tables* tables) {
+  // Twelve user guesses: three user-like seeds in each kind of cell (quick: two in one cell).
+  const std::vector<std::string> kinds = config.quick ? std::vector<std::string>{"default"} : kAllKinds;
+  auto cells = MakeCells(robot, kinds, "small", 1, config.quick ? 2 : 3, config.rng_seed + 7);
+  if (!cells.ok()) return cells.status();
+  std::vector<Job> jobs;
+  std::vector<std::string> methods = {""};
+  methods.insert(methods.end(), config.perturb_methods.begin(), config.perturb_methods.end());
+  for (const auto& method : methods)
+    for (const auto& cell : *cells)
+      for (int s = 0; s < static_cast<int>(cell.sim.seeds.size()); ++s) {
+        auto more = PerturbJobs(cell, s, method, config.quick);
+        jobs.insert(jobs.end(), more.begin(), more.end());
+      }
+  spdlog::info("bench: seed perturbations: {} runs", jobs.size());
+  const std::vector<Run> runs = Execute(jobs, config.jobs);
+  const auto guesses = Select(runs, [](const Run& r) { return r.method == "user guess"; });
+  tables->table3.push_back(Summarise(guesses, {{"method", "user guess"}, {"set", "all"}}));
+  for (const auto& method : config.perturb_methods) {
+    tables->table3.push_back(Summarise(Select(runs, [&](const Run& r) { return r.method == method; }),
+                                       {{"method", method}, {"set", "all"}}));
+    for (const char* kind : {"rotation", "translation"})
+      tables->table3.push_back(Summarise(
+          Select(runs, [&](const Run& r) { return r.method == method && r.perturbation == kind; }),
+          {{"method", method}, {"set", kind}}));
+  }
+  Append(tables, runs);
+  return Status::Ok();
+}
+
+Status ScenesExperiment(const RobotModel& robot, const Config& config, Tables* tables) {
+  const std::vector<std::string> kinds =
+      config.quick ? std::vector<std::string>{"default", "near-table"} : kAllKinds;
+  auto cells = MakeCells(robot, kinds, "small", config.quick ? 1 : 2, config.quick ? 2 : 3, config.rng_seed + 13);
+  if (!cells.ok()) return cells.status();
+  std::vector<Job> jobs;
+  for (const auto& method : config.scene_methods)
+    for (const auto& cell : *cells)
+      for (int s = 0; s < static_cast<int>(cell.sim.seeds.size()); ++s) {
+        Job job;
+        job.cell = &cell;
+        job.T_world_seed = cell.sim.seeds[s];
+        job.options = BaseOptions(method, "small");
+        job.run = Label("scenes", method, "small", "defaults", cell, s);
+        jobs.push_back(job);
+      }
+  spdlog::info("bench: methods on each kind of scene: {} runs", jobs.size());
+  const std::vector<Run> runs = Execute(jobs, config.jobs);
+  for (const auto& method : config.scene_methods) {
+    for (const auto& kind : kinds)
+      tables->scenes.push_back(Summarise(Select(runs, [&](const Run& r) { return r.method == method && r.scene_kind == kind; }),
+                                         {{"method", method}, {"scene", kind}}));
+    tables->scenes.push_back(Summarise(Select(runs, [&](const Run& r) { return r.method == method; }),
+                                       {{"method", method}, {"scene", "all"}}));
+  }
+  Append(tables, runs);
+  return Status::Ok();
+}
+
+}  // namespace arref::bench

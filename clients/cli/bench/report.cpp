@@ -1,0 +1,187 @@
+// The bench's output: markdown tables (results.md), CSV files and gnuplot PNG figures.
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <set>
+
+#include "bench.h"
+
+namespace arref::bench {
+namespace {
+
+std::string Num(double v, int digits = 1) { return std::isfinite(v) ? fmt::format("{:.{}f}", v, digits) : "-"; }
+
+struct Column {
+  const char* name;
+  std::function<std::string(const Row&)> value;
+};
+
+const std::vector<Column>& StatColumns() {
+  static const std::vector<Column> kColumns = {
+      {"runs", [](const Row& r) { return std::to_string(r.runs); }},
+      {"errors (segmentation)", [](const Row& r) { return fmt::format("{} ({})", r.errors, r.segmentation_flags); }},
+      {"RMS mean mm", [](const Row& r) { return Num(r.rms_mean_mm, 2); }},
+      {"RMS min", [](const Row& r) { return Num(r.rms_min_mm, 2); }},
+      {"RMS max", [](const Row& r) { return Num(r.rms_max_mm, 2); }},
+      {"RMS sigma", [](const Row& r) { return Num(r.rms_std_mm, 2); }},
+      {"success (ADD<=10mm)", [](const Row& r) { return Num(r.success * 100, 0) + " %"; }},
+      {"ADD median mm", [](const Row& r) { return Num(r.add_median_mm); }},
+      {"ADD p95 mm", [](const Row& r) { return Num(r.add_p95_mm); }},
+      {"transl. median mm", [](const Row& r) { return Num(r.translation_median_mm); }},
+      {"rot. median deg", [](const Row& r) { return Num(r.rotation_median_deg, 2); }},
+      {"register median ms", [](const Row& r) { return Num(r.register_median_ms, 0); }},
+      {"MLS median ms", [](const Row& r) { return Num(r.mls_median_ms, 0); }},
+      {"total median ms", [](const Row& r) { return Num(r.total_median_ms, 0); }},
+      {"peak MB", [](const Row& r) { return Num(r.peak_mb, 0); }},
+  };
+  return kColumns;
+}
+
+void MarkdownTable(std::ostream& out, const std::vector<Row>& rows, const std::vector<std::string>& labels) {
+  out << "|";
+  for (const auto& l : labels) out << " " << l << " |";
+  for (const auto& c : StatColumns()) out << " " << c.name << " |";
+  out << "\n|";
+  for (std::size_t i = 0; i < labels.size() + StatColumns().size(); ++i) out << "---|";
+  out << "\n";
+  for (const auto& row : rows) {
+    out << "|";
+    for (const auto& l : labels) out << " " << (row.labels.count(l) ? row.labels.at(l) : "") << " |";
+    for (const auto& c : StatColumns()) out << " " << c.value(row) << " |";
+    out << "\n";
+  }
+  out << "\n";
+}
+
+std::string Csv(const std::string& s) { return s.find(',') == std::string::npos ? s : "\"" + s + "\""; }
+
+Status CsvTable(const std::string& path, const std::vector<Row>& rows, const std::vector<std::string>& labels) {
+  std::ofstream out(path);
+  if (!out) return Status::IoError("cannot write " + path);
+  std::vector<std::string> header = labels;
+  for (const auto& c : StatColumns()) header.push_back(c.name);
+  for (std::size_t i = 0; i < header.size(); ++i) out << (i ? "," : "") << Csv(header[i]);
+  out << "\n";
+  for (const auto& row : rows) {
+    for (std::size_t i = 0; i < labels.size(); ++i) out << (i ? "," : "") << Csv(row.labels.count(labels[i]) ? row.labels.at(labels[i]) : "");
+    for (const auto& c : StatColumns()) out << "," << Csv(c.value(row));
+    out << "\n";
+  }
+  return out ? Status::Ok() : Status::IoError("error writing " + path);
+}
+
+Status RunsCsv(const std::string& path, const std::vector<Run>& runs) {
+  std::ofstream out(path);
+  if (!out) return Status::IoError("cannot write " + path);
+  out << "experiment,method,size,params,scene,cell,seed,perturbation,seed_yaw_deg,offset_x,offset_y,offset_z,ok,"
+         "rms_mm,add_mm,translation_mm,rotation_deg,crop_ms,sample_ms,mls_ms,register_ms,total_ms,peak_mb,error\n";
+  auto stage = [](const Run& r, const char* s) { return r.stage_ms.count(s) ? Num(r.stage_ms.at(s), 1) : ""; };
+  for (const auto& r : runs)
+    out << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", r.experiment, Csv(r.method),
+                       r.size, Csv(r.params), r.scene_kind, r.cell, r.seed, r.perturbation, r.seed_yaw_deg,
+                       r.seed_offset_m.x(), r.seed_offset_m.y(), r.seed_offset_m.z(), r.ok ? 1 : 0, Num(r.rms_m * 1e3, 3),
+                       Num(r.add_m * 1e3, 3), Num(r.translation_m * 1e3, 3), Num(r.rotation_deg, 3), stage(r, "crop"),
+                       stage(r, "sample"), stage(r, "mls"), stage(r, "register"), Num(r.total_ms, 1), Num(r.peak_mb, 0),
+                       Csv(r.error));
+  return out ? Status::Ok() : Status::IoError("error writing " + path);
+}
+
+// One line per x value: mean/min/max RMS and median ADD of each method's perturbation runs.
+Status PlotData(const std::string& path, const std::vector<Run>& runs, const std::vector<std::string>& methods,
+                const std::string& perturbation, const std::function<double(const Run&)>& x) {
+  std::map<double, std::map<std::string, std::vector<const Run*>>> groups;
+  for (const auto& r : runs)
+    if (r.experiment == "perturb" && r.perturbation == perturbation && r.ok) groups[x(r)][r.method].push_back(&r);
+  std::ofstream out(path);
+  if (!out) return Status::IoError("cannot write " + path);
+  out << "# x";
+  for (const auto& m : methods) out << fmt::format(" '{0} RMS mean' '{0} RMS min' '{0} RMS max' '{0} ADD median'", m);
+  out << "\n";
+  for (const auto& [value, by_method] : groups) {
+    out << value;
+    for (const auto& m : methods) {
+      const auto it = by_method.find(m);
+      const Row row = Summarise(it == by_method.end() ? std::vector<const Run*>{} : it->second, {});
+      out << " " << Num(row.rms_mean_mm, 3) << " " << Num(row.rms_min_mm, 3) << " " << Num(row.rms_max_mm, 3) << " "
+          << Num(row.add_median_mm, 3);
+    }
+    out << "\n";
+  }
+  return out ? Status::Ok() : Status::IoError("error writing " + path);
+}
+
+std::string GnuplotScript(const std::string& data, const std::string& png, const std::string& xlabel,
+                          const std::vector<std::string>& methods) {
+  std::string s = fmt::format(
+      "set terminal pngcairo size 1000,600\nset output '{}'\nset xlabel '{}'\nset ylabel 'RMS (paper metric), mm'\n"
+      "set y2label 'ADD median (ground truth), mm'\nset y2tics\nset ytics nomirror\nset logscale y\nset logscale y2\n"
+      "set key outside right\nset grid\nset datafile missing '-'\nplot ",
+      png, xlabel);
+  for (std::size_t i = 0; i < methods.size(); ++i) {
+    const std::size_t c = 2 + 4 * i;
+    s += fmt::format("'{0}' using 1:{1}:{2}:{3} with yerrorlines title '{4} RMS mean (min-max)', "
+                     "'{0}' using 1:{5} axes x1y2 with linespoints dt 2 title '{4} ADD median'{6}",
+                     data, c, c + 1, c + 2, methods[i], c + 3, i + 1 < methods.size() ? ", " : "\n");
+  }
+  return s;
+}
+
+// Writes the data and script, then runs gnuplot if it is installed; returns a note for the report.
+std::string Plot(const std::string& dir, const std::string& name, const std::string& xlabel, const Tables& tables,
+                 const std::vector<std::string>& methods, const std::string& perturbation,
+                 const std::function<double(const Run&)>& x) {
+  const std::string data = dir + "/" + name + ".dat", script = dir + "/" + name + ".gp", png = dir + "/" + name + ".png";
+  if (auto st = PlotData(data, tables.runs, methods, perturbation, x); !st.ok()) return st.ToString();
+  std::ofstream(script) << GnuplotScript(data, png, xlabel, methods);
+  if (std::system("command -v gnuplot >/dev/null 2>&1") != 0)
+    return fmt::format("gnuplot is not installed: {} not drawn (data in {}, script {}; apt-get install gnuplot-nox)", png,
+                       data, script);
+  if (std::system(("gnuplot '" + script + "' 2>/dev/null").c_str()) != 0)
+    return fmt::format("gnuplot failed on {}: {} not drawn", script, png);
+  return fmt::format("![{}]({}.png)", name, name);
+}
+
+}  // namespace
+
+Status WriteReport(const Config& config, const Tables& tables, const std::string& command_line) {
+  const std::string& dir = config.out_dir;
+  ARREF_RETURN_IF_ERROR(RunsCsv(dir + "/runs.csv", tables.runs));
+  ARREF_RETURN_IF_ERROR(CsvTable(dir + "/table1.csv", tables.table1, {"method", "size"}));
+  ARREF_RETURN_IF_ERROR(CsvTable(dir + "/table2.csv", tables.table2, {"method", "size", "rank", "params"}));
+  ARREF_RETURN_IF_ERROR(CsvTable(dir + "/table3.csv", tables.table3, {"method", "set"}));
+  ARREF_RETURN_IF_ERROR(CsvTable(dir + "/scenes.csv", tables.scenes, {"method", "scene"}));
+  std::vector<std::string> plotted = {"user guess"};
+  plotted.insert(plotted.end(), config.perturb_methods.begin(), config.perturb_methods.end());
+  const std::string rotation_plot = Plot(dir, "rotation", "seed rotated about z, deg", tables, plotted, "rotation",
+                                         [](const Run& r) { return r.seed_yaw_deg; });
+  const std::string translation_plot =
+      Plot(dir, "translation", "seed moved along x, y or z, m", tables, plotted, "translation",
+           [](const Run& r) { return std::round(r.seed_offset_m.sum() * 10) / 10; });
+
+  std::ofstream md(dir + "/results.md");
+  if (!md) return Status::IoError("cannot write " + dir + "/results.md");
+  md << "# arref bench\n\nCommand: `" << command_line << "`\n\n";
+  md << "RMS is the paper's metric (all model points to the nearest scene point, mm); ADD, translation and rotation "
+        "errors are against the simulator's ground truth; success = ADD <= 10 mm over all runs (errors count as "
+        "failures); times are medians per run.\n\n";
+  md << "## Table I: the parameter sweep, per algorithm and size\n\n";
+  MarkdownTable(md, tables.table1, {"method", "size"});
+  md << "## Table II: best and worst parameter sets\n\n";
+  MarkdownTable(md, tables.table2, {"method", "size", "rank", "params"});
+  md << "## Table III: twelve user guesses, rotated in 18 degree steps and moved along a 1 m cube in 0.1 m steps\n\n";
+  MarkdownTable(md, tables.table3, {"method", "set"});
+  md << rotation_plot << "\n\n" << translation_plot << "\n\n";
+  md << "## Every method on each kind of scene (default parameters, user-like seeds)\n\n";
+  MarkdownTable(md, tables.scenes, {"method", "scene"});
+  for (const auto& n : tables.notes) md << "- " << n << "\n";
+  if (!md) return Status::IoError("error writing " + dir + "/results.md");
+  spdlog::info("bench: wrote {}/results.md, runs.csv, table*.csv, scenes.csv and plots", dir);
+  return Status::Ok();
+}
+
+}  // namespace arref::bench

@@ -1,0 +1,100 @@
+// `arref bench`: reproduces the paper's experiments on simulated cells with ground truth.
+#include <spdlog/spdlog.h>
+
+#include <chrono>
+#include <filesystem>
+#include <sstream>
+
+#include "bench/bench.h"
+#include "cli_common.h"
+#include "commands.h"
+
+namespace arref::cli {
+namespace {
+
+struct BenchArgs {
+  RobotArgs robot;
+  std::string methods = "pcl-icp,super4pcs";
+  std::string perturb_methods = "pcl-icp";
+  std::string scene_methods;  // default: methods
+  std::string out;
+  bool quick = false;
+  bool no_big = false;
+  int jobs = 1;
+  std::uint64_t rng_seed = 1;
+  std::string only;  // comma-separated subset of sweep, perturb, scenes
+  std::string command_line;
+};
+
+Result<std::vector<std::string>> ParseMethodList(const std::string& text, const char* option) {
+  std::vector<std::string> names;
+  std::stringstream ss(text);
+  for (std::string name; std::getline(ss, name, ',');) {
+    if (name.empty()) continue;
+    if (auto m = ParseMethod(name); !m.ok()) return m.status().WithContext(option);
+    names.push_back(name);
+  }
+  return names;
+}
+
+int Run(const BenchArgs& args) {
+  bench::Config config;
+  auto methods = ParseMethodList(args.methods, "--methods");
+  if (!methods.ok()) return Fail(methods.status());
+  auto perturb = ParseMethodList(args.perturb_methods, "--perturb-methods");
+  if (!perturb.ok()) return Fail(perturb.status());
+  auto scenes = ParseMethodList(args.scene_methods.empty() ? args.methods : args.scene_methods, "--scene-methods");
+  if (!scenes.ok()) return Fail(scenes.status());
+  config.methods = *methods, config.perturb_methods = *perturb, config.scene_methods = *scenes;
+  config.out_dir = args.out, config.quick = args.quick, config.big = !args.no_big;
+  config.jobs = args.jobs, config.rng_seed = args.rng_seed;
+  std::error_code ec;
+  std::filesystem::create_directories(config.out_dir, ec);
+  if (ec) return Fail(Status::IoError("--out " + config.out_dir + ": " + ec.message()));
+  auto robot = LoadRobot(args.robot);
+  if (!robot.ok()) return Fail(robot.status());
+  auto wanted = [&](const char* name) { return args.only.empty() || args.only.find(name) != std::string::npos; };
+
+  const auto t0 = std::chrono::steady_clock::now();
+  bench::Tables tables;
+  tables.notes.push_back("robot: " + robot->name() + (args.robot.urdf.empty() ? " (built-in)" : " (" + args.robot.urdf + ")"));
+  if (wanted("sweep"))
+    if (auto st = bench::SweepExperiment(*robot, config, &tables); !st.ok()) return Fail(st.WithContext("sweep"));
+  if (wanted("perturb"))
+    if (auto st = bench::PerturbExperiment(*robot, config, &tables); !st.ok()) return Fail(st.WithContext("perturbations"));
+  if (wanted("scenes"))
+    if (auto st = bench::ScenesExperiment(*robot, config, &tables); !st.ok()) return Fail(st.WithContext("scenes"));
+  const double minutes = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() / 60;
+  tables.notes.push_back(fmt::format("{} runs in {:.1f} min with {} parallel job(s)", tables.runs.size(), minutes, config.jobs));
+  if (config.quick) tables.notes.push_back("--quick: a subset (small configuration only, fewer cells, seeds and parameter sets)");
+  if (auto st = bench::WriteReport(config, tables, args.command_line); !st.ok()) return Fail(st);
+  spdlog::info("bench: {} runs in {:.1f} min", tables.runs.size(), minutes);
+  return kExitOk;
+}
+
+}  // namespace
+
+void AddBenchCommand(CLI::App& app, int* exit_code) {
+  auto args = std::make_shared<BenchArgs>();
+  CLI::App* cmd = app.add_subcommand("bench", "Reproduce the paper's experiments on simulated cells with ground truth");
+  AddRobotOptions(*cmd, args->robot);
+  cmd->add_option("--out", args->out, "Directory for results.md, CSV files and plots")->required();
+  cmd->add_option("--methods", args->methods, "Registration methods to sweep and compare, comma-separated")->capture_default_str();
+  cmd->add_option("--scene-methods", args->scene_methods, "Methods run on every kind of scene (default: --methods)");
+  cmd->add_option("--perturb-methods", args->perturb_methods, "Methods for the seed perturbations (Table III)")->capture_default_str();
+  cmd->add_flag("--quick", args->quick, "A small subset (about two minutes on two cores)");
+  cmd->add_flag("--no-big", args->no_big, "Skip the paper's big configuration (256,000 samples)");
+  cmd->add_option("--jobs", args->jobs, "Registrations run in parallel (1: clean per-run times and memory)")
+      ->check(CLI::Range(1, 64))->capture_default_str();
+  cmd->add_option("--rng-seed", args->rng_seed, "Seed of the simulated cells")->capture_default_str();
+  cmd->add_option("--only", args->only, "Run only these experiments: sweep, perturb, scenes (comma-separated)");
+  cmd->callback([args, exit_code, cmd] {
+    args->command_line = "arref bench";
+    for (const auto& o : cmd->get_options())
+      if (o->count() > 0 && o->get_name() != "--help")
+        args->command_line += " " + o->get_name() + (o->get_expected_min() > 0 ? " " + o->as<std::string>() : "");
+    *exit_code = Run(*args);
+  });
+}
+
+}  // namespace arref::cli

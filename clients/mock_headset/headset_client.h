@@ -1,0 +1,115 @@
+// A headset-side client of arref-server, behaving like the HoloLens app: streams its spatial
+// map as Unity-convention surfaces in batches, places the seed, asks for a registration and
+// reads progress and the result. Blocking sockets, one thread per headset. Shared by the
+// arref-mock-headset tool and the integration tests.
+#pragma once
+
+#include <cstdint>
+#include <functional>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "arref/metrics.h"
+#include "arref/robot_model.h"
+#include "arref/spatial_mesh.h"
+#include "arref/status.h"
+#include "wire.h"
+
+namespace arref::headset {
+
+namespace pb = wire::pb;
+
+// One blocking TCP connection exchanging arref.v1 frames.
+class Connection {
+ public:
+  // rcvbuf_bytes > 0 shrinks the socket's receive buffer (to make a non-reading client stall sooner).
+  static Result<Connection> Connect(const std::string& host, std::uint16_t port, double timeout_s,
+                                    int rcvbuf_bytes = 0);
+  Connection() = default;  // not connected
+  Connection(Connection&& other) noexcept;
+  Connection& operator=(Connection&& other) noexcept;
+  ~Connection();
+
+  Status Send(const pb::ClientMessage& message);
+  Status SendRaw(const std::string& bytes);
+  // The next server message within timeout_s. kUnavailable: the server closed the connection;
+  // kResourceExhausted: timed out.
+  Result<pb::ServerMessage> Receive(double timeout_s);
+  void Close();
+  bool open() const { return fd_ >= 0; }
+
+ private:
+  explicit Connection(int fd) : fd_(fd) {}
+  int fd_ = -1;
+  std::string rx_;
+};
+
+// What the headset has mapped (internal frame), and the truth when it is known.
+struct HeadsetScene {
+  std::vector<Surface> surfaces;
+  std::vector<Iso3> seeds;               // T_world_seed guesses
+  std::optional<Iso3> T_world_base_true;
+  JointValues joints;                    // robot joint state (sent as JointState when non-empty)
+  std::vector<Vec3f> model_points;       // robot points in its base frame, for ADD
+};
+
+// A simulated cell of the built-in robot (small preset), as the mock headset maps it.
+Result<HeadsetScene> SimulatedScene(std::uint64_t rng_seed);
+// A mesh file split into 1 m HoloLens-like surfaces; truth_json (optional) is `arref simulate`'s.
+Result<HeadsetScene> SceneFromFiles(const std::string& mesh_path, FrameConvention mesh_frame,
+                                    const std::string& truth_json, const std::optional<Iso3>& seed);
+
+enum class Misbehaviour { kNone, kDisconnectMidUpload, kCorruptFrame, kOversizedMessage, kNeverReadReplies };
+
+struct HeadsetOptions {
+  std::string host = "127.0.0.1";
+  std::uint16_t port = 7311;
+  std::string robot_id = "kr5";
+  std::string client_name = "arref-mock-headset";
+  std::string auth_token;
+  std::uint32_t protocol_version = wire::kProtocolVersion;
+  int seed_index = 0;
+  int batches = 3;                 // the map arrives in this many batches ...
+  double batch_interval_s = 0.05;  // ... this far apart
+  double resend_fraction = 0.2;    // surfaces of the first batch re-sent as updates in the last
+  double quantize_scale = 0.0;     // > 0: int16 vertices with this step (m)
+  int repeat = 1;                  // registrations on the same session
+  std::uint64_t first_request_id = 1;
+  std::string method;              // "" = server default
+  double timeout_s = 300.0;        // per reply; only to avoid hanging forever
+  Misbehaviour misbehaviour = Misbehaviour::kNone;
+  std::function<void(const pb::Progress&)> on_progress;
+};
+
+struct RegistrationOutcome {
+  std::uint64_t request_id = 0;
+  pb::Result result;
+  Iso3 T_world_base = Iso3::Identity();  // converted back from the Unity pose
+  double latency_ms = 0.0;               // last byte of the request sent -> result received
+  std::optional<PoseError> error;        // against the truth, when known
+};
+
+struct HeadsetRun {
+  Status status;  // OK only when every registration came back OK
+  std::uint64_t session_id = 0;
+  std::vector<RegistrationOutcome> registrations;
+  std::vector<pb::Error> errors;  // every Error the server sent
+  bool got_shutdown = false;      // the server announced a shutdown
+  bool server_closed = false;     // the server closed the connection
+};
+
+HeadsetRun RunHeadset(const HeadsetScene& scene, const HeadsetOptions& options);
+
+// Many headsets at once (one thread each, seed i % seeds), for load tests and latency figures.
+std::vector<HeadsetRun> RunHeadsets(const HeadsetScene& scene, const HeadsetOptions& options, int clients);
+
+struct LatencySummary {
+  std::size_t count = 0;
+  double median_ms = 0.0;
+  double p95_ms = 0.0;
+  double max_ms = 0.0;
+};
+LatencySummary SummarizeLatency(const std::vector<HeadsetRun>& runs);
+
+}  // namespace arref::headset

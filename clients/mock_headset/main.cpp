@@ -1,0 +1,200 @@
+// arref-mock-headset: plays a HoloLens app against arref-server (see headset_client.h).
+// Exit code 0 only when every registration came back OK.
+#include <CLI/CLI.hpp>
+#include <spdlog/sinks/stdout_color_sinks.h>
+#include <spdlog/spdlog.h>
+
+#include <iostream>
+#include <nlohmann/json.hpp>
+#include <sstream>
+
+#include "headset_client.h"
+
+namespace {
+
+using namespace arref;
+using namespace arref::headset;
+
+struct Args {
+  HeadsetOptions options;
+  int port = 7311;
+  std::uint64_t rng_seed = 1;
+  std::string scene;
+  std::string frame = "ros";
+  std::string truth;
+  std::string seed;
+  int clients = 1;
+  bool json = false;
+  bool disconnect = false, corrupt = false, oversized = false, never_read = false;
+  std::string log_level = "warn";
+};
+
+void AddFlags(CLI::App& app, Args& a) {
+  HeadsetOptions& o = a.options;
+  app.add_option("--host", o.host, "Server address")->capture_default_str();
+  app.add_option("--port", a.port, "Server port")->capture_default_str()->check(CLI::Range(1, 65535));
+  app.add_option("--robot", o.robot_id, "Robot id served by the server")->capture_default_str();
+  app.add_option("--rng-seed", a.rng_seed, "Simulated cell (built-in robot, small preset) to map")->capture_default_str();
+  app.add_option("--scene", a.scene, "Map this mesh file instead of a simulated cell");
+  app.add_option("--frame", a.frame, "Convention of --scene and --seed: ros or unity")
+      ->check(CLI::IsMember({"ros", "unity"}))->capture_default_str();
+  app.add_option("--truth", a.truth, "Ground truth JSON of --scene (from `arref simulate`)");
+  app.add_option("--seed", a.seed, "Seed pose x,y,z,qx,qy,qz,qw for --scene");
+  app.add_option("--seed-index", o.seed_index, "Which of the cell's seeds the user places")->capture_default_str();
+  app.add_option("--batches", o.batches, "Upload the map in this many batches")->capture_default_str();
+  app.add_option("--batch-interval", o.batch_interval_s, "Seconds between batches")->capture_default_str();
+  app.add_option("--resend-fraction", o.resend_fraction, "Share of the first batch re-sent as updates");
+  app.add_option("--quantize", o.quantize_scale, "Send int16 vertices with this step, m (0: floats)");
+  app.add_option("--method", o.method, "Registration method (default: the server's)");
+  app.add_option("--repeat", o.repeat, "Registrations per headset")->capture_default_str();
+  app.add_option("--clients", a.clients, "Concurrent headsets (latency figures)")->capture_default_str();
+  app.add_option("--timeout", o.timeout_s, "Give up waiting for a reply after this many seconds");
+  app.add_option("--name", o.client_name, "Client name sent in Hello");
+  app.add_option("--auth-token", o.auth_token, "Token if the server requires one");
+  app.add_option("--protocol-version", o.protocol_version, "Claim this protocol version in Hello");
+  app.add_flag("--disconnect-mid-upload", a.disconnect, "Misbehave: drop the connection halfway through the map");
+  app.add_flag("--corrupt-frame", a.corrupt, "Misbehave: send a frame that is not a protobuf message");
+  app.add_flag("--oversized-message", a.oversized, "Misbehave: announce a 1 GiB message");
+  app.add_flag("--never-read-replies", a.never_read, "Misbehave: never read, flood with Pings");
+  app.add_flag("--json", a.json, "Print the outcome as JSON");
+  app.add_option("--log-level", a.log_level, "trace, debug, info, warn, error")->capture_default_str();
+}
+
+Misbehaviour ChosenMisbehaviour(const Args& a) {
+  if (a.disconnect) return Misbehaviour::kDisconnectMidUpload;
+  if (a.corrupt) return Misbehaviour::kCorruptFrame;
+  if (a.oversized) return Misbehaviour::kOversizedMessage;
+  if (a.never_read) return Misbehaviour::kNeverReadReplies;
+  return Misbehaviour::kNone;
+}
+
+Result<Iso3> ParseSeed(const std::string& text, FrameConvention frame) {
+  std::vector<double> v;
+  std::stringstream in(text);
+  for (std::string item; std::getline(in, item, ',');) {
+    try {
+      v.push_back(std::stod(item));
+    } catch (const std::exception&) {
+      return Status::InvalidArgument("--seed: '" + item + "' is not a number");
+    }
+  }
+  if (v.size() != 7) return Status::InvalidArgument("--seed needs x,y,z,qx,qy,qz,qw");
+  return PoseToRos(Vec3(v[0], v[1], v[2]), Quat(v[6], v[3], v[4], v[5]).normalized(), frame);
+}
+
+Result<HeadsetScene> BuildScene(const Args& a) {
+  if (a.scene.empty()) return SimulatedScene(a.rng_seed);
+  auto frame = ParseFrameConvention(a.frame);
+  if (!frame.ok()) return frame.status();
+  std::optional<Iso3> seed;
+  if (!a.seed.empty()) {
+    auto s = ParseSeed(a.seed, *frame);
+    if (!s.ok()) return s.status();
+    seed = *s;
+  }
+  return SceneFromFiles(a.scene, *frame, a.truth, seed);
+}
+
+nlohmann::json RunJson(const HeadsetRun& run) {
+  nlohmann::json j;
+  j["ok"] = run.status.ok();
+  j["status"] = run.status.ToString();
+  j["session_id"] = run.session_id;
+  j["server_closed"] = run.server_closed;
+  j["got_shutdown"] = run.got_shutdown;
+  j["errors"] = nlohmann::json::array();
+  for (const auto& e : run.errors)
+    j["errors"].push_back({{"code", wire::ErrorCodeName(e.code())}, {"message", e.message()}, {"fatal", e.fatal()},
+                           {"request_id", e.request_id()}, {"surface_id", e.surface_id()}});
+  j["registrations"] = nlohmann::json::array();
+  for (const auto& r : run.registrations) {
+    nlohmann::json x{{"request_id", r.request_id}, {"status", wire::pb::ResultStatus_Name(r.result.status())},
+                     {"latency_ms", r.latency_ms}, {"rms_m", r.result.rms_m()},
+                     {"inlier_fraction", r.result.inlier_fraction()}, {"iterations", r.result.iterations()},
+                     {"server_ms", r.result.server_ms()}, {"queue_ms", r.result.queue_ms()},
+                     {"message", r.result.message()}};
+    const auto& p = r.result.t_world_base();
+    x["T_world_base_unity"] = {p.position().x(), p.position().y(), p.position().z(), p.orientation().x(),
+                               p.orientation().y(), p.orientation().z(), p.orientation().w()};
+    if (r.error)
+      x["truth_error"] = {{"add_m", r.error->add_m}, {"translation_m", r.error->translation_m},
+                          {"rotation_deg", r.error->rotation_deg}};
+    j["registrations"].push_back(x);
+  }
+  return j;
+}
+
+void PrintHuman(const HeadsetRun& run) {
+  for (const auto& e : run.errors)
+    std::cout << "server error " << wire::ErrorCodeName(e.code()) << ": " << e.message() << "\n";
+  for (const auto& r : run.registrations) {
+    const auto& p = r.result.t_world_base();
+    std::cout << fmt::format("request {}: {} in {:.0f} ms (server {:.0f} ms, queued {:.0f} ms)\n", r.request_id,
+                             wire::pb::ResultStatus_Name(r.result.status()), r.latency_ms, r.result.server_ms(),
+                             r.result.queue_ms());
+    if (r.result.status() != wire::pb::RESULT_STATUS_OK) continue;
+    std::cout << fmt::format("  T_world_base (Unity): position ({:.4f}, {:.4f}, {:.4f}) rotation ({:.4f}, {:.4f}, {:.4f}, {:.4f})\n",
+                             p.position().x(), p.position().y(), p.position().z(), p.orientation().x(),
+                             p.orientation().y(), p.orientation().z(), p.orientation().w());
+    std::cout << fmt::format("  rms {:.1f} mm, inliers {:.1f} %, {} iterations\n", r.result.rms_m() * 1e3,
+                             r.result.inlier_fraction() * 100, r.result.iterations());
+    if (r.error)
+      std::cout << fmt::format("  vs truth: ADD {:.1f} mm, translation {:.1f} mm, rotation {:.2f} deg\n",
+                               r.error->add_m * 1e3, r.error->translation_m * 1e3, r.error->rotation_deg);
+  }
+  std::cout << (run.status.ok() ? "OK" : "FAILED: " + run.status.ToString()) << std::endl;
+}
+
+void PrintSummary(const std::vector<HeadsetRun>& runs, bool json) {
+  const LatencySummary s = SummarizeLatency(runs);
+  int ok = 0;
+  for (const auto& r : runs) ok += r.status.ok();
+  if (json) {
+    nlohmann::json j{{"clients", runs.size()}, {"clients_ok", ok}, {"results", s.count},
+                     {"latency_median_ms", s.median_ms}, {"latency_p95_ms", s.p95_ms}, {"latency_max_ms", s.max_ms}};
+    j["runs"] = nlohmann::json::array();
+    for (const auto& r : runs) j["runs"].push_back(RunJson(r));
+    std::cout << j.dump(2) << std::endl;
+    return;
+  }
+  for (const auto& r : runs)
+    if (!r.status.ok()) std::cout << "headset failed: " << r.status.ToString() << "\n";
+  std::cout << fmt::format("{} of {} headsets OK; {} results; latency (request sent -> result) median {:.0f} ms, "
+                           "p95 {:.0f} ms, max {:.0f} ms\n", ok, runs.size(), s.count, s.median_ms, s.p95_ms, s.max_ms);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  CLI::App app{"arref-mock-headset: behaves like the HoloLens app against arref-server"};
+  Args args;
+  AddFlags(app, args);
+  CLI11_PARSE(app, argc, argv);
+  spdlog::set_default_logger(spdlog::stderr_color_mt("mock-headset"));
+  spdlog::set_level(spdlog::level::from_str(args.log_level));
+  args.options.port = static_cast<std::uint16_t>(args.port);
+  args.options.misbehaviour = ChosenMisbehaviour(args);
+  if (args.clients == 1 && args.options.repeat == 1 && !args.json)
+    args.options.on_progress = [](const wire::pb::Progress& p) {
+      std::cerr << fmt::format("request {}: {} {:.0f} %\n", p.request_id(), p.stage(), p.fraction() * 100);
+    };
+  auto scene = BuildScene(args);
+  if (!scene.ok()) {
+    spdlog::error("{}", scene.status().ToString());
+    return 3;
+  }
+  std::vector<HeadsetRun> runs;
+  if (args.clients > 1 || args.options.repeat > 1) {  // latency figures
+    runs = RunHeadsets(*scene, args.options, args.clients);
+    PrintSummary(runs, args.json);
+  } else {
+    runs.push_back(RunHeadset(*scene, args.options));
+    if (args.json)
+      std::cout << RunJson(runs[0]).dump(2) << std::endl;
+    else
+      PrintHuman(runs[0]);
+  }
+  for (const auto& r : runs)
+    if (!r.status.ok()) return 1;
+  return 0;
+}

@@ -1,0 +1,60 @@
+// arref's ICP kernel: point-to-plane Gauss-Newton on SE(3) (or its gravity-aligned 4-DoF
+// subgroup) with a Geman-McClure kernel and normal-compatible correspondences, over plain
+// point arrays. Correspondence search and reduction run in parallel (oneTBB).
+#pragma once
+
+#include <cstdint>
+#include <vector>
+
+#include "arref/geometry.h"
+#include "arref/nearest_neighbor.h"
+
+namespace arref {
+
+// The scene side, built once per request: points, outward normals and their k-d tree.
+class TargetCloud {
+ public:
+  explicit TargetCloud(PointCloud scene);  // needs normals
+  const PointIndex& index() const { return index_; }
+  const std::vector<Vec3f>& normals() const { return normals_; }
+  std::size_t size() const { return index_.size(); }
+
+ private:
+  std::vector<Vec3f> normals_;
+  PointIndex index_;
+};
+
+struct IcpSettings {
+  double max_correspondence_m = 0.05;
+  int max_iterations = 30;
+  // Geman-McClure scale (Black & Rangarajan 1996): weight = (s^2 / (s^2 + r^2))^2.
+  double kernel_scale_m = 0.01;
+  double min_normal_cos = 0.5;  // pairs whose normals differ by more than 60 degrees are no match
+  bool yaw_only = false;        // 4-DoF: x, y, z and yaw about gravity
+  double converged_translation_m = 1e-4;  // a step this small ends the level
+  double converged_rotation_rad = 1e-4;
+};
+
+struct IcpStats {
+  Iso3 T_target_source = Iso3::Identity();
+  int iterations = 0;
+  bool converged = false;
+  std::size_t correspondences = 0;  // in the last iteration
+};
+
+// Aligns source (points + normals, its own frame) to target, starting at T_target_source.
+IcpStats AlignPointToPlane(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
+                           const IcpSettings& settings);
+
+// Runs AlignPointToPlane once per correspondence distance, coarse to fine.
+IcpStats AlignCoarseToFine(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
+                           const std::vector<double>& distances_m, IcpSettings settings);
+
+struct AlignmentScore {
+  double inlier_fraction = 0.0;  // source points with a normal-compatible target point within the threshold
+  double rms_inliers_m = 0.0;
+};
+AlignmentScore ScoreAlignment(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
+                              double inlier_threshold_m, double min_normal_cos);
+
+}  // namespace arref

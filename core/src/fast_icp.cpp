@@ -1,0 +1,163 @@
+#include "arref/fast_icp.h"
+
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_reduce.h>
+
+#include <Eigen/Cholesky>
+
+namespace arref {
+namespace {
+
+using Mat6 = Eigen::Matrix<double, 6, 6>;
+using Vec6 = Eigen::Matrix<double, 6, 1>;
+
+// Normal equations of one Gauss-Newton step, summed over correspondences.
+struct Normal {
+  Mat6 H = Mat6::Zero();
+  Vec6 b = Vec6::Zero();
+  std::size_t count = 0;
+  Normal& operator+=(const Normal& o) {
+    H += o.H;
+    b += o.b;
+    count += o.count;
+    return *this;
+  }
+};
+
+// Point-to-plane residual r = n . (T p - q) with the left perturbation T <- exp(xi) T,
+// xi = (v, w): dr/dxi = [n^T, (T p x n)^T] (Low 2004, "Linear least-squares optimization for
+// point-to-plane ICP", eq. 8, in Lie-algebra form).
+Normal Accumulate(const PointCloud& source, const TargetCloud& target, const Eigen::Isometry3f& T,
+                  const IcpSettings& s, std::size_t begin, std::size_t end) {
+  Normal eq;
+  const float max_sq = static_cast<float>(s.max_correspondence_m * s.max_correspondence_m);
+  const double scale_sq = s.kernel_scale_m * s.kernel_scale_m;
+  const Eigen::Matrix3f R = T.linear();
+  for (std::size_t i = begin; i < end; ++i) {
+    const Vec3f p = T * source.points[i];
+    std::uint32_t j;
+    float sq;
+    if (!target.index().NearestWithin(p, max_sq, &j, &sq)) continue;
+    const Vec3f& n = target.normals()[j];
+    if ((R * source.normals[i]).dot(n) < s.min_normal_cos) continue;
+    const double r = n.dot(p - target.index().points()[j]);
+    const double w = std::pow(scale_sq / (scale_sq + r * r), 2);
+    Vec6 J;
+    J.head<3>() = n.cast<double>();
+    J.tail<3>() = p.cast<double>().cross(n.cast<double>());
+    eq.H.selfadjointView<Eigen::Upper>().rankUpdate(J, w);
+    eq.b += w * r * J;
+    ++eq.count;
+  }
+  return eq;
+}
+
+Normal BuildNormalEquations(const PointCloud& source, const TargetCloud& target, const Iso3& T,
+                            const IcpSettings& s) {
+  const Eigen::Isometry3f Tf = T.cast<float>();
+  Normal eq = tbb::parallel_deterministic_reduce(
+      tbb::blocked_range<std::size_t>(0, source.size(), 256), Normal{},
+      [&](const tbb::blocked_range<std::size_t>& r, Normal acc) {
+        acc += Accumulate(source, target, Tf, s, r.begin(), r.end());
+        return acc;
+      },
+      [](Normal a, const Normal& b) { return a += b; });
+  eq.H.triangularView<Eigen::Lower>() = eq.H.transpose();
+  return eq;
+}
+
+// Solves for xi; in 4-DoF mode only x, y, z and the rotation about z move.
+Vec6 SolveStep(const Normal& eq, bool yaw_only) {
+  Vec6 xi = Vec6::Zero();
+  if (yaw_only) {
+    const std::array<int, 4> dof = {0, 1, 2, 5};
+    Eigen::Matrix4d H;
+    Eigen::Vector4d b;
+    for (int r = 0; r < 4; ++r) {
+      b(r) = eq.b(dof[r]);
+      for (int c = 0; c < 4; ++c) H(r, c) = eq.H(dof[r], dof[c]);
+    }
+    const Eigen::Vector4d x = H.ldlt().solve(-b);
+    for (int r = 0; r < 4; ++r) xi(dof[r]) = x(r);
+  } else {
+    xi = eq.H.ldlt().solve(-eq.b);
+  }
+  return xi;
+}
+
+Iso3 Exp(const Vec6& xi) {
+  Iso3 T = Iso3::Identity();
+  const double angle = xi.tail<3>().norm();
+  if (angle > 1e-12) T.linear() = Eigen::AngleAxisd(angle, xi.tail<3>() / angle).toRotationMatrix();
+  T.translation() = xi.head<3>();
+  return T;
+}
+
+}  // namespace
+
+TargetCloud::TargetCloud(PointCloud scene) : normals_(std::move(scene.normals)), index_(std::move(scene.points)) {}
+
+IcpStats AlignPointToPlane(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
+                           const IcpSettings& settings) {
+  IcpStats stats;
+  stats.T_target_source = T_target_source;
+  for (; stats.iterations < settings.max_iterations; ++stats.iterations) {
+    const Normal eq = BuildNormalEquations(source, target, stats.T_target_source, settings);
+    stats.correspondences = eq.count;
+    if (eq.count < 6) break;  // too few to constrain the pose: keep the last one
+    const Vec6 xi = SolveStep(eq, settings.yaw_only);
+    if (!xi.allFinite()) break;
+    stats.T_target_source = Exp(xi) * stats.T_target_source;
+    if (xi.head<3>().norm() < settings.converged_translation_m && xi.tail<3>().norm() < settings.converged_rotation_rad) {
+      stats.converged = true;
+      ++stats.iterations;
+      break;
+    }
+  }
+  return stats;
+}
+
+IcpStats AlignCoarseToFine(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
+                           const std::vector<double>& distances_m, IcpSettings settings) {
+  IcpStats total;
+  total.T_target_source = T_target_source;
+  for (double d : distances_m) {
+    settings.max_correspondence_m = d;
+    settings.kernel_scale_m = std::max(0.005, d / 3);  // the kernel tightens with the search radius
+    const IcpStats level = AlignPointToPlane(source, target, total.T_target_source, settings);
+    total.T_target_source = level.T_target_source;
+    total.iterations += level.iterations;
+    total.converged = level.converged;
+    total.correspondences = level.correspondences;
+  }
+  return total;
+}
+
+AlignmentScore ScoreAlignment(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
+                              double inlier_threshold_m, double min_normal_cos) {
+  const Eigen::Isometry3f T = T_target_source.cast<float>();
+  const Eigen::Matrix3f R = T.linear();
+  const float max_sq = static_cast<float>(inlier_threshold_m * inlier_threshold_m);
+  struct Sum { std::size_t inliers = 0; double sq = 0; };
+  const Sum sum = tbb::parallel_deterministic_reduce(
+      tbb::blocked_range<std::size_t>(0, source.size(), 512), Sum{},
+      [&](const tbb::blocked_range<std::size_t>& r, Sum acc) {
+        for (std::size_t i = r.begin(); i < r.end(); ++i) {
+          std::uint32_t j;
+          float sq;
+          if (!target.index().NearestWithin(T * source.points[i], max_sq, &j, &sq)) continue;
+          if ((R * source.normals[i]).dot(target.normals()[j]) < min_normal_cos) continue;
+          ++acc.inliers;
+          acc.sq += sq;
+        }
+        return acc;
+      },
+      [](Sum a, const Sum& b) { a.inliers += b.inliers; a.sq += b.sq; return a; });
+  AlignmentScore score;
+  if (source.size() == 0) return score;
+  score.inlier_fraction = static_cast<double>(sum.inliers) / static_cast<double>(source.size());
+  score.rms_inliers_m = sum.inliers ? std::sqrt(sum.sq / static_cast<double>(sum.inliers)) : 0.0;
+  return score;
+}
+
+}  // namespace arref

@@ -1,0 +1,99 @@
+// Registration jobs: a bounded queue feeding a fixed pool of worker threads. No networking
+// here; sessions hand in jobs with callbacks and get progress and the outcome back.
+#pragma once
+
+#include <atomic>
+#include <chrono>
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <functional>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <string_view>
+#include <thread>
+#include <vector>
+
+#include "arref/frames.h"
+#include "arref/geometry.h"
+#include "arref/pipeline.h"
+#include "arref/robot_model.h"
+#include "arref/status.h"
+
+namespace arref::server {
+
+struct JobOutcome {
+  std::optional<RegistrationReport> report;  // set when the pipeline produced a pose
+  Status status;                             // why there is no report (kCancelled when cancelled)
+  double queue_ms = 0.0;
+  double run_ms = 0.0;
+};
+
+struct Job {
+  using Clock = std::chrono::steady_clock;
+  std::uint64_t session_id = 0;
+  std::uint64_t request_id = 0;
+  std::string robot_id;
+  JointValues joints;          // complete and validated
+  TriangleMesh scene_world;    // snapshot of the session's map when the request came
+  Iso3 T_world_seed = Iso3::Identity();
+  RegistrationOptions options;
+  FrameConvention result_frame = FrameConvention::kUnity;
+  Clock::time_point accepted_at = Clock::now();
+  std::atomic<bool> cancel_requested{false};
+  std::atomic<bool> finished{false};  // its outcome is being delivered: too late to cancel
+
+  // Called from worker threads (or the thread that cancels a queued job). on_done is called
+  // exactly once per accepted job.
+  std::function<void(std::string_view stage, double fraction)> on_progress;
+  std::function<void(const Job&, const JobOutcome&)> on_done;
+};
+
+// Runs a job to completion on a worker thread; must honour job.cancel_requested.
+using JobRunner = std::function<JobOutcome(Job& job)>;
+
+class JobScheduler {
+ public:
+  JobScheduler(std::size_t workers, std::size_t queue_capacity, JobRunner runner);
+  ~JobScheduler();
+  JobScheduler(const JobScheduler&) = delete;
+  JobScheduler& operator=(const JobScheduler&) = delete;
+
+  enum class SubmitResult { kQueued, kFull, kClosed };
+  // position: jobs waiting ahead of this one.
+  SubmitResult Submit(std::shared_ptr<Job> job, std::size_t* position);
+
+  enum class CancelResult { kRemovedFromQueue, kFlaggedRunning, kNotFound };
+  // A job removed from the queue is answered by the caller via on_done (see CancelQueued).
+  CancelResult Cancel(std::uint64_t session_id, std::uint64_t request_id, std::shared_ptr<Job>* removed);
+  // The session is gone: drops its queued jobs (returned) and flags its running ones.
+  std::vector<std::shared_ptr<Job>> CancelSession(std::uint64_t session_id);
+
+  // Shutdown: no more submissions; returns the jobs still queued (never to run).
+  std::vector<std::shared_ptr<Job>> CloseQueue();
+  void CancelAllRunning();
+  std::size_t running() const;
+  std::size_t queued() const;
+  // Waits for the workers to exit (after CloseQueue and the running jobs end).
+  void Join();
+
+ private:
+  void WorkerLoop(int index);
+  std::shared_ptr<Job> Pop();
+
+  JobRunner runner_;
+  std::size_t capacity_;
+  mutable std::mutex mu_;
+  std::condition_variable cv_;
+  std::deque<std::shared_ptr<Job>> queue_;
+  std::vector<std::shared_ptr<Job>> running_;
+  bool closed_ = false;
+  std::vector<std::thread> threads_;
+};
+
+// Answers a job that will never run.
+void FinishCancelled(Job& job, const std::string& why);
+
+}  // namespace arref::server

@@ -1,0 +1,184 @@
+#include "server_config.h"
+
+#include <yaml-cpp/yaml.h>
+
+#include <filesystem>
+#include <fstream>
+#include <set>
+#include <sstream>
+
+#include "arref/builtin.h"
+
+namespace arref::server {
+namespace {
+
+namespace fs = std::filesystem;
+
+Status CheckKeys(const YAML::Node& node, const std::string& where, const std::set<std::string>& known) {
+  if (!node.IsMap()) return Status::InvalidArgument(where + ": expected a mapping");
+  for (const auto& kv : node) {
+    const std::string key = kv.first.as<std::string>();
+    if (!known.count(key)) {
+      std::string list;
+      for (const auto& k : known) list += (list.empty() ? "" : ", ") + k;
+      return Status::InvalidArgument(where + ": unknown key '" + key + "' (known: " + list + ")");
+    }
+  }
+  return Status::Ok();
+}
+
+template <typename T>
+void Read(const YAML::Node& node, const char* key, T& out) {
+  if (node[key]) out = node[key].as<T>();
+}
+
+std::string Resolve(const std::string& path, const std::string& base_dir) {
+  const fs::path p(path);
+  return p.is_absolute() ? p.string() : (fs::path(base_dir) / p).lexically_normal().string();
+}
+
+Status ReadServer(const YAML::Node& n, ServerConfig& c) {
+  ARREF_RETURN_IF_ERROR(CheckKeys(n, "server", {"address", "port", "io_threads", "workers", "queue_size",
+                                                "idle_timeout_s", "send_timeout_s", "shutdown_grace_s",
+                                                "auth_token", "log_level"}));
+  Read(n, "address", c.address);
+  Read(n, "port", c.port);
+  Read(n, "io_threads", c.io_threads);
+  Read(n, "workers", c.workers);
+  Read(n, "queue_size", c.queue_size);
+  Read(n, "idle_timeout_s", c.idle_timeout_s);
+  Read(n, "send_timeout_s", c.send_timeout_s);
+  Read(n, "shutdown_grace_s", c.shutdown_grace_s);
+  Read(n, "auth_token", c.auth_token);
+  Read(n, "log_level", c.log_level);
+  return Status::Ok();
+}
+
+Status ReadLimits(const YAML::Node& n, ServerLimits& l) {
+  ARREF_RETURN_IF_ERROR(CheckKeys(n, "limits", {"max_message_bytes", "max_sessions", "max_surfaces_per_session",
+                                                "max_vertices_per_session", "max_requests_per_session",
+                                                "max_send_queue_bytes", "max_send_queue_messages"}));
+  Read(n, "max_message_bytes", l.max_message_bytes);
+  Read(n, "max_sessions", l.max_sessions);
+  Read(n, "max_surfaces_per_session", l.max_surfaces_per_session);
+  Read(n, "max_vertices_per_session", l.max_vertices_per_session);
+  Read(n, "max_requests_per_session", l.max_requests_per_session);
+  Read(n, "max_send_queue_bytes", l.max_send_queue_bytes);
+  Read(n, "max_send_queue_messages", l.max_send_queue_messages);
+  return Status::Ok();
+}
+
+Status ReadRegistration(const YAML::Node& n, ServerConfig& c) {
+  ARREF_RETURN_IF_ERROR(CheckKeys(n, "registration", {"method", "crop_radius_m", "scene_samples", "model_samples",
+                                                      "icp_max_correspondence_m", "icp_max_iterations",
+                                                      "inlier_threshold_m", "sample_seed", "model_cache_entries"}));
+  RegistrationOptions& o = c.registration;
+  if (n["method"]) {
+    auto method = ParseMethod(n["method"].as<std::string>());
+    if (!method.ok()) return method.status().WithContext("registration.method");
+    o.method = *method;
+  }
+  Read(n, "crop_radius_m", o.crop_radius_m);
+  Read(n, "scene_samples", o.scene_samples);
+  Read(n, "model_samples", o.model_samples);
+  Read(n, "icp_max_correspondence_m", o.icp.max_correspondence_m);
+  Read(n, "icp_max_iterations", o.icp.max_iterations);
+  Read(n, "inlier_threshold_m", o.inlier_threshold_m);
+  Read(n, "sample_seed", o.sample_seed);
+  Read(n, "model_cache_entries", c.model_cache_entries);
+  return Status::Ok();
+}
+
+Result<RobotConfig> ReadRobot(const YAML::Node& n, std::size_t index, const std::string& base_dir) {
+  const std::string where = "robots[" + std::to_string(index) + "]";
+  ARREF_RETURN_IF_ERROR(CheckKeys(n, where, {"id", "urdf", "package_path", "default_joints"}));
+  RobotConfig r;
+  Read(n, "id", r.id);
+  Read(n, "urdf", r.urdf);
+  if (r.id.empty()) return Status::InvalidArgument(where + ": 'id' is required");
+  if (r.urdf.empty()) return Status::InvalidArgument(where + " (" + r.id + "): 'urdf' is required (a path or 'builtin')");
+  if (r.urdf == "builtin") {
+    auto urdf = BuiltinRobotUrdf();
+    if (!urdf.ok()) return urdf.status().WithContext(where + " urdf: builtin");
+    r.urdf = *urdf;
+  } else {
+    r.urdf = Resolve(r.urdf, base_dir);
+  }
+  if (n["package_path"]) {
+    const YAML::Node pp = n["package_path"];
+    if (pp.IsScalar()) r.package_path.push_back(Resolve(pp.as<std::string>(), base_dir));
+    else
+      for (const auto& p : pp) r.package_path.push_back(Resolve(p.as<std::string>(), base_dir));
+  }
+  if (n["default_joints"]) {
+    if (!n["default_joints"].IsMap()) return Status::InvalidArgument(where + ".default_joints: expected name: value");
+    for (const auto& kv : n["default_joints"]) r.default_joints[kv.first.as<std::string>()] = kv.second.as<double>();
+  }
+  return r;
+}
+
+Status ReadRobots(const YAML::Node& n, const std::string& base_dir, ServerConfig& c) {
+  if (!n.IsSequence()) return Status::InvalidArgument("robots: expected a list");
+  std::set<std::string> ids;
+  for (std::size_t i = 0; i < n.size(); ++i) {
+    auto robot = ReadRobot(n[i], i, base_dir);
+    if (!robot.ok()) return robot.status();
+    if (!ids.insert(robot->id).second) return Status::InvalidArgument("robots: duplicate id '" + robot->id + "'");
+    c.robots.push_back(std::move(*robot));
+  }
+  return Status::Ok();
+}
+
+Status ReadAll(const YAML::Node& root, const std::string& base_dir, ServerConfig& c) {
+  ARREF_RETURN_IF_ERROR(CheckKeys(root, "config", {"server", "limits", "registration", "robots"}));
+  if (root["server"]) ARREF_RETURN_IF_ERROR(ReadServer(root["server"], c));
+  if (root["limits"]) ARREF_RETURN_IF_ERROR(ReadLimits(root["limits"], c.limits));
+  if (root["registration"]) ARREF_RETURN_IF_ERROR(ReadRegistration(root["registration"], c));
+  if (root["robots"]) ARREF_RETURN_IF_ERROR(ReadRobots(root["robots"], base_dir, c));
+  return Status::Ok();
+}
+
+}  // namespace
+
+Status ValidateServerConfig(const ServerConfig& c) {
+  if (c.robots.empty()) return Status::InvalidArgument("no robots configured (robots: [...])");
+  if (c.workers < 1 || c.workers > 256) return Status::InvalidArgument("server.workers must be 1..256");
+  if (c.io_threads < 1 || c.io_threads > 64) return Status::InvalidArgument("server.io_threads must be 1..64");
+  if (c.queue_size < 1) return Status::InvalidArgument("server.queue_size must be >= 1");
+  if (!(c.idle_timeout_s > 0) || !(c.send_timeout_s > 0) || !(c.shutdown_grace_s >= 0))
+    return Status::InvalidArgument("server timeouts must be > 0 s");
+  if (c.limits.max_message_bytes < 64) return Status::InvalidArgument("limits.max_message_bytes must be >= 64");
+  if (c.limits.max_sessions < 1) return Status::InvalidArgument("limits.max_sessions must be >= 1");
+  if (c.registration.model_samples < 3) return Status::InvalidArgument("registration.model_samples must be >= 3");
+  return Status::Ok();
+}
+
+Result<ServerConfig> ParseServerConfig(const std::string& yaml_text, const std::string& base_dir) {
+  ServerConfig c;
+  try {
+    ARREF_RETURN_IF_ERROR(ReadAll(YAML::Load(yaml_text), base_dir, c));
+  } catch (const YAML::Exception& e) {
+    return Status::InvalidArgument(std::string("YAML: ") + e.what());
+  }
+  return c;
+}
+
+Result<ServerConfig> LoadServerConfig(const std::string& path) {
+  std::ifstream in(path);
+  if (!in) return Status::NotFound("config file " + path + " cannot be opened");
+  std::stringstream text;
+  text << in.rdbuf();
+  const std::string dir = fs::absolute(fs::path(path)).parent_path().string();
+  auto config = ParseServerConfig(text.str(), dir);
+  if (!config.ok()) return config.status().WithContext(path);
+  config->source = path;
+  return config;
+}
+
+Result<ServerConfig> LoadDefaultServerConfig() {
+  auto path = FindConfigFile("arref-server.yaml");
+  if (!path.ok()) return path.status();
+  return LoadServerConfig(*path);
+}
+
+}  // namespace arref::server

@@ -1,0 +1,58 @@
+// arref-server configuration: YAML file (config/arref-server.yaml) plus command-line overrides.
+#pragma once
+
+#include <cstdint>
+#include <string>
+#include <vector>
+
+#include "arref/pipeline.h"
+#include "arref/robot_model.h"
+#include "arref/status.h"
+
+namespace arref::server {
+
+// A robot the server can register. Clients name it by id only; files stay on the server.
+struct RobotConfig {
+  std::string id;
+  std::string urdf;                       // absolute path (resolved from "builtin" or relative)
+  std::vector<std::string> package_path;  // absolute folders for package:// URIs
+  JointValues default_joints;             // unnamed joints: 0 (clamped into limits)
+};
+
+struct ServerLimits {
+  std::size_t max_message_bytes = 16u << 20;      // one incoming frame
+  std::size_t max_sessions = 64;                  // concurrent connections
+  std::size_t max_surfaces_per_session = 4000;
+  std::size_t max_vertices_per_session = 4'000'000;
+  std::size_t max_requests_per_session = 8;       // accepted and not yet answered
+  std::size_t max_send_queue_bytes = 8u << 20;    // unsent replies before the session is dropped
+  std::size_t max_send_queue_messages = 4096;
+};
+
+struct ServerConfig {
+  std::string address = "0.0.0.0";
+  std::uint16_t port = 7311;
+  int io_threads = 1;
+  int workers = 2;
+  std::size_t queue_size = 16;
+  double idle_timeout_s = 120.0;   // no bytes from the client and nothing in flight
+  double send_timeout_s = 30.0;    // one write may take this long before the session is dropped
+  double shutdown_grace_s = 30.0;  // running jobs may finish within this on SIGTERM
+  std::string auth_token;          // empty: no token required
+  std::string log_level = "info";
+  ServerLimits limits;
+  RegistrationOptions registration;
+  std::size_t model_cache_entries = 32;
+  std::vector<RobotConfig> robots;
+  std::string source;  // where the config came from, for logs
+};
+
+// Parses YAML text; relative paths resolve against base_dir. Unknown keys are errors (a typo
+// must not silently fall back to a default).
+Result<ServerConfig> ParseServerConfig(const std::string& yaml_text, const std::string& base_dir);
+Result<ServerConfig> LoadServerConfig(const std::string& path);
+// The built-in default: config/arref-server.yaml found via FindConfigFile.
+Result<ServerConfig> LoadDefaultServerConfig();
+Status ValidateServerConfig(const ServerConfig& config);
+
+}  // namespace arref::server

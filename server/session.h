@@ -1,0 +1,145 @@
+// One headset connection (internal to the server; includes Asio and the protocol).
+//
+// Everything a session owns is touched only on its strand: reads are chained one after the
+// other, writes go through a bounded queue, timers and posts from worker threads land on the
+// same strand. A session closes itself on a fatal error; it never throws past its handlers.
+#pragma once
+
+// Boost 1.74 Asio uses std::exchange without including <utility> in C++20 mode.
+#include <utility>
+
+#include <boost/asio.hpp>
+
+#include <cstdint>
+#include <deque>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <set>
+#include <string>
+#include <vector>
+
+#include "arref/spatial_mesh.h"
+#include "job_scheduler.h"
+#include "robot_registry.h"
+#include "server_config.h"
+#include "wire.h"
+
+namespace arref::server {
+
+namespace net = boost::asio;
+using tcp = net::ip::tcp;
+
+class Session;
+
+// Which sessions want the results of which robot.
+class SubscriberHub {
+ public:
+  void Set(const std::string& robot_id, const std::shared_ptr<Session>& session, bool subscribe);
+  void RemoveSession(std::uint64_t session_id);
+  // Sends the frame to every subscriber of the robot except one session (it got it already).
+  void Publish(const std::string& robot_id, const std::shared_ptr<const std::string>& frame,
+               std::uint64_t except_session);
+
+ private:
+  std::mutex mu_;
+  std::map<std::string, std::map<std::uint64_t, std::weak_ptr<Session>>> subscribers_;
+};
+
+// What every session shares: set up once by the server.
+struct ServerContext {
+  const ServerConfig& config;
+  RobotRegistry& robots;
+  JobScheduler& jobs;
+  SubscriberHub& hub;
+  std::atomic<bool>& shutting_down;
+  std::function<void(std::uint64_t session_id)> on_session_closed;
+  std::string server_version;
+};
+
+class Session : public std::enable_shared_from_this<Session> {
+ public:
+  Session(tcp::socket socket, ServerContext& context, std::uint64_t id);
+  ~Session();
+
+  std::uint64_t id() const { return id_; }
+  void Start();
+  // Rejects the connection with a fatal error (e.g. too many sessions).
+  void Reject(wire::pb::ErrorCode code, const std::string& message);
+
+  // Thread-safe: these post onto the session's strand.
+  void SendFrame(std::shared_ptr<const std::string> frame);
+  void DeliverResult(std::uint64_t request_id, std::shared_ptr<const std::string> frame);
+  void NotifyShutdown(double grace_s);
+  void CloseGracefully(const std::string& reason);
+  // True once nothing is left to write (read on the strand via posts; approximate elsewhere).
+  bool idle_for_shutdown() const { return write_queue_empty_; }
+
+ private:
+  enum class State { kAwaitHello, kReady, kClosing, kClosed };
+
+  // Reading and framing.
+  void ReadMore();
+  void OnRead(const boost::system::error_code& ec, std::size_t bytes);
+  bool ProcessBuffer();  // false when the session started closing
+  void ArmIdleTimer();
+
+  // Message handlers.
+  void Handle(const wire::pb::ClientMessage& message);
+  void OnHello(const wire::pb::Hello& m);
+  void OnSurfaceUpsert(const wire::pb::SurfaceUpsert& m);
+  void OnSurfaceRemove(const wire::pb::SurfaceRemove& m);
+  void OnSeedPose(const wire::pb::SeedPose& m);
+  void OnJointState(const wire::pb::JointState& m);
+  void OnRegisterRequest(const wire::pb::RegisterRequest& m);
+  void OnCancel(const wire::pb::Cancel& m);
+  void OnSubscribe(const wire::pb::Subscribe& m);
+  void OnPing(const wire::pb::Ping& m);
+
+  // Building a job from a request; an error is sent and nullptr returned on bad input.
+  std::shared_ptr<Job> MakeJob(const wire::pb::RegisterRequest& m);
+  Result<RegistrationOptions> RequestOptions(const wire::pb::RegisterRequest& m) const;
+  void AttachCallbacks(Job& job);
+
+  // Writing.
+  void Send(const wire::pb::ServerMessage& message);
+  void SendError(wire::pb::ErrorCode code, const std::string& message, std::uint64_t request_id = 0,
+                 std::uint64_t surface_id = 0);
+  void Enqueue(std::shared_ptr<const std::string> frame);
+  void WriteNext();
+  void OnWrite(const boost::system::error_code& ec, std::size_t bytes);
+
+  // Closing.
+  void FailAndClose(wire::pb::ErrorCode code, const std::string& message);  // fatal error, then flush + close
+  void StartClosing(const std::string& reason);
+  void CloseNow(const std::string& reason);  // drops unsent data
+
+  tcp::socket socket_;
+  ServerContext& ctx_;
+  const std::uint64_t id_;
+  State state_ = State::kAwaitHello;
+  std::string peer_;
+  std::string client_name_;
+  std::string close_reason_;
+
+  std::vector<std::uint8_t> rx_;
+  std::size_t rx_size_ = 0;
+  net::steady_timer idle_timer_;
+  net::steady_timer write_timer_;
+  net::steady_timer linger_timer_;
+
+  std::deque<std::shared_ptr<const std::string>> write_queue_;
+  std::size_t write_queue_bytes_ = 0;
+  bool writing_ = false;
+  std::atomic<bool> write_queue_empty_{true};
+
+  SpatialMesh spatial_;
+  std::optional<Iso3> seed_;
+  FrameConvention seed_frame_ = FrameConvention::kUnity;
+  std::map<std::string, JointValues> joints_;  // by robot id; "" applies to every robot
+  std::set<std::uint64_t> in_flight_;
+  bool shutdown_notified_ = false;
+};
+
+}  // namespace arref::server

@@ -1,0 +1,98 @@
+// `arref bench --quick` end to end: every file, every table row, and numbers that make sense.
+#include <gtest/gtest.h>
+
+#include <filesystem>
+#include <fstream>
+#include <map>
+
+#include "test_support.h"
+
+namespace arref {
+namespace {
+
+using Table = std::vector<std::map<std::string, std::string>>;
+
+std::vector<std::string> SplitCsvLine(const std::string& line) {
+  std::vector<std::string> cells(1);
+  bool quoted = false;
+  for (char c : line) {
+    if (c == '"') quoted = !quoted;
+    else if (c == ',' && !quoted) cells.emplace_back();
+    else cells.back() += c;
+  }
+  return cells;
+}
+
+Table ReadCsv(const std::string& path) {
+  std::ifstream in(path);
+  std::string line;
+  std::getline(in, line);
+  const auto header = SplitCsvLine(line);
+  Table rows;
+  while (std::getline(in, line)) {
+    const auto cells = SplitCsvLine(line);
+    EXPECT_EQ(cells.size(), header.size()) << path << ": " << line;
+    std::map<std::string, std::string> row;
+    for (std::size_t i = 0; i < header.size() && i < cells.size(); ++i) row[header[i]] = cells[i];
+    rows.push_back(row);
+  }
+  return rows;
+}
+
+const std::map<std::string, std::string>* Find(const Table& t, const std::string& k1, const std::string& v1,
+                                                const std::string& k2, const std::string& v2) {
+  for (const auto& row : t)
+    if (row.at(k1) == v1 && row.at(k2) == v2) return &row;
+  return nullptr;
+}
+
+double Percent(const std::string& s) { return std::stod(s.substr(0, s.find(' '))); }
+
+TEST(Bench, QuickRunWritesSaneTables) {
+  const std::string out = ::testing::TempDir() + "/arref_bench_quick";
+  std::filesystem::remove_all(out);
+  const auto r = testing::RunCommand(std::string(ARREF_BINARY_DIR) + "/clients/cli/arref bench --quick --jobs 2 --out " + out);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  for (const char* f : {"results.md", "runs.csv", "table1.csv", "table2.csv", "table3.csv", "scenes.csv", "rotation.dat",
+                        "rotation.gp", "translation.dat"})
+    EXPECT_TRUE(std::filesystem::exists(out + "/" + f)) << f;
+  if (std::system("command -v gnuplot >/dev/null 2>&1") == 0) {
+    EXPECT_GT(std::filesystem::file_size(out + "/rotation.png"), 1000u);
+    EXPECT_GT(std::filesystem::file_size(out + "/translation.png"), 1000u);
+  }
+
+  // Table I: one row per swept method and size, RMS ordered and positive.
+  const Table t1 = ReadCsv(out + "/table1.csv");
+  for (const char* method : {"pcl-icp", "super4pcs"}) {
+    const auto* row = Find(t1, "method", method, "size", "small");
+    ASSERT_NE(row, nullptr) << method;
+    const double mn = std::stod(row->at("RMS min")), mean = std::stod(row->at("RMS mean mm")), mx = std::stod(row->at("RMS max"));
+    EXPECT_GT(mn, 0.5) << method;  // a coarse headset mesh never fits to under a millimetre
+    EXPECT_LE(mn, mean);
+    EXPECT_LE(mean, mx);
+    EXPECT_LT(mx, 2000.0);
+  }
+  // Table II: best/worst by RMS and best by ADD for each method.
+  EXPECT_EQ(ReadCsv(out + "/table2.csv").size(), 6u);
+  // Table III: the user guess, and ICP over all, rotated and moved seeds.
+  const Table t3 = ReadCsv(out + "/table3.csv");
+  ASSERT_NE(Find(t3, "method", "user guess", "set", "all"), nullptr);
+  for (const char* set : {"all", "rotation", "translation"}) ASSERT_NE(Find(t3, "method", "pcl-icp", "set", set), nullptr) << set;
+  // ICP improves on the guess it starts from, by the paper's metric.
+  EXPECT_LT(std::stod(Find(t3, "method", "pcl-icp", "set", "all")->at("RMS mean mm")),
+            std::stod(Find(t3, "method", "user guess", "set", "all")->at("RMS mean mm")));
+
+  // Scenes: ICP from user-like seeds succeeds sometimes on the built-in robot.
+  const Table scenes = ReadCsv(out + "/scenes.csv");
+  const auto* icp = Find(scenes, "method", "pcl-icp", "scene", "all");
+  ASSERT_NE(icp, nullptr);
+  EXPECT_GT(Percent(icp->at("success (ADD<=10mm)")), 0.0);
+  EXPECT_LT(std::stod(icp->at("ADD median mm")), 50.0);
+  ASSERT_NE(Find(scenes, "method", "super4pcs", "scene", "near-table"), nullptr);
+
+  // Every run is in runs.csv: sweep 2 methods x 8 sets x 2 runs, perturbations 2 x 2 x 17, scenes 2 x 4.
+  EXPECT_EQ(ReadCsv(out + "/runs.csv").size(), 32u + 68u + 8u);
+}
+
+}  // namespace
+}  // namespace arref

@@ -1,0 +1,624 @@
+// End-to-end tests of arref-server: the real server process on loopback, driven by the mock
+// headset (its client library and, for the misbehaviour flags, its executable).
+#include <fcntl.h>
+#include <poll.h>
+#include <signal.h>
+#include <spawn.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <filesystem>
+#include <fstream>
+#include <map>
+#include <memory>
+#include <regex>
+#include <set>
+#include <sstream>
+#include <string>
+#include <thread>
+#include <vector>
+
+#include "headset_client.h"
+
+extern char** environ;
+
+namespace arref::headset {
+namespace {
+
+namespace fs = std::filesystem;
+using Clock = std::chrono::steady_clock;
+
+const std::string kServerPath = ARREF_BINARY_DIR "/server/arref-server";
+const std::string kMockPath = ARREF_BINARY_DIR "/clients/mock_headset/arref-mock-headset";
+constexpr double kReplyTimeout = 120.0;  // only to avoid hanging; never a speed assertion
+
+// Success = ADD within this of the truth. PCL ICP from user-like seeds (~0.1 m, ~15 deg off)
+// lands around 1 cm off on these cells (measured here: median ADD 9.5 mm, 49 of 50 within 20 mm,
+// one seed in a wrong basin at 0.6 m; see docs/domain-notes.md), so the bound is 30 mm and the
+// tests ask for a success rate, not every seed.
+constexpr double kAddSuccessM = 0.030;
+constexpr double kMinSuccessRate = 0.8;
+
+struct ServerSettings {
+  int workers = 2;
+  int queue_size = 32;
+  std::size_t max_sessions = 64;
+  std::size_t max_send_queue_bytes = 8u << 20;
+  double shutdown_grace_s = 60;
+};
+
+std::string ConfigYaml(const ServerSettings& s) {
+  std::ostringstream y;
+  y << "server:\n  address: 127.0.0.1\n  port: 0\n  workers: " << s.workers << "\n  queue_size: " << s.queue_size
+    << "\n  shutdown_grace_s: " << s.shutdown_grace_s << "\n  idle_timeout_s: 300\n"
+    << "limits:\n  max_sessions: " << s.max_sessions << "\n  max_send_queue_bytes: " << s.max_send_queue_bytes
+    << "\nrobots:\n  - id: kr5\n    urdf: builtin\n";
+  return y.str();
+}
+
+// The real arref-server process, its port read from its stdout.
+class ServerProcess {
+ public:
+  explicit ServerProcess(const ServerSettings& settings = {}) {
+    static int counter = 0;
+    const std::string tag = std::to_string(getpid()) + "_" + std::to_string(counter++);
+    config_path_ = (fs::temp_directory_path() / ("arref_server_test_" + tag + ".yaml")).string();
+    log_path_ = (fs::temp_directory_path() / ("arref_server_test_" + tag + ".log")).string();
+    std::ofstream(config_path_) << ConfigYaml(settings);
+    Spawn();
+  }
+  ~ServerProcess() {
+    if (pid_ > 0) {
+      kill(pid_, SIGKILL);
+      waitpid(pid_, nullptr, 0);
+    }
+    if (stdout_fd_ >= 0) close(stdout_fd_);
+    fs::remove(config_path_);
+    fs::remove(log_path_);
+  }
+
+  std::uint16_t port() const { return port_; }
+  pid_t pid() const { return pid_; }
+  bool alive() const { return pid_ > 0 && kill(pid_, 0) == 0; }
+  std::string Log() const {
+    std::ifstream in(log_path_);
+    std::stringstream s;
+    s << in.rdbuf();
+    return s.str();
+  }
+  long RssKb() const {
+    std::ifstream in("/proc/" + std::to_string(pid_) + "/status");
+    for (std::string line; std::getline(in, line);)
+      if (line.rfind("VmRSS:", 0) == 0) return std::stol(line.substr(6));
+    return -1;
+  }
+  // Sends the signal and waits (bounded) for the exit status; -1 if it did not exit.
+  int SignalAndWait(int signal, double timeout_s) {
+    kill(pid_, signal);
+    const auto deadline = Clock::now() + std::chrono::duration<double>(timeout_s);
+    while (Clock::now() < deadline) {
+      int status = 0;
+      if (waitpid(pid_, &status, WNOHANG) == pid_) {
+        pid_ = -1;
+        return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
+      }
+      std::this_thread::sleep_for(std::chrono::milliseconds(20));
+    }
+    return -1;
+  }
+
+ private:
+  void Spawn() {
+    int out[2];
+    ASSERT_EQ(pipe(out), 0);
+    posix_spawn_file_actions_t actions;
+    posix_spawn_file_actions_init(&actions);
+    posix_spawn_file_actions_adddup2(&actions, out[1], STDOUT_FILENO);
+    posix_spawn_file_actions_addclose(&actions, out[0]);
+    posix_spawn_file_actions_addopen(&actions, STDERR_FILENO, log_path_.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+    std::vector<std::string> args{kServerPath, "--config", config_path_, "--port", "0", "--address", "127.0.0.1"};
+    std::vector<char*> argv;
+    for (auto& a : args) argv.push_back(a.data());
+    argv.push_back(nullptr);
+    ASSERT_EQ(posix_spawn(&pid_, kServerPath.c_str(), &actions, nullptr, argv.data(), environ), 0) << kServerPath;
+    posix_spawn_file_actions_destroy(&actions);
+    close(out[1]);
+    stdout_fd_ = out[0];
+    ReadPort();
+  }
+
+  void ReadPort() {
+    const std::regex line_re(R"(listening on 127\.0\.0\.1:(\d+))");
+    std::string text;
+    const auto deadline = Clock::now() + std::chrono::seconds(60);
+    while (Clock::now() < deadline) {
+      pollfd p{stdout_fd_, POLLIN, 0};
+      if (poll(&p, 1, 200) <= 0) continue;
+      char buf[256];
+      const ssize_t n = read(stdout_fd_, buf, sizeof buf);
+      if (n <= 0) break;
+      text.append(buf, static_cast<std::size_t>(n));
+      std::smatch m;
+      if (std::regex_search(text, m, line_re)) {
+        port_ = static_cast<std::uint16_t>(std::stoi(m[1]));
+        return;
+      }
+    }
+    FAIL() << "arref-server did not print its port; stdout: " << text << "\nlog:\n" << Log();
+  }
+
+  pid_t pid_ = -1;
+  int stdout_fd_ = -1;
+  std::uint16_t port_ = 0;
+  std::string config_path_;
+  std::string log_path_;
+};
+
+// Simulated cells shared by all tests (simulating is the slow part of a client).
+const HeadsetScene& Scene(std::uint64_t rng_seed) {
+  static std::map<std::uint64_t, HeadsetScene> scenes;
+  static std::mutex mu;
+  std::lock_guard lock(mu);
+  auto it = scenes.find(rng_seed);
+  if (it == scenes.end()) {
+    auto scene = SimulatedScene(rng_seed);
+    EXPECT_TRUE(scene.ok()) << scene.status().ToString();
+    it = scenes.emplace(rng_seed, scene.ok() ? std::move(*scene) : HeadsetScene{}).first;
+  }
+  return it->second;
+}
+
+HeadsetOptions Options(const ServerProcess& server) {
+  HeadsetOptions o;
+  o.host = "127.0.0.1";
+  o.port = server.port();
+  o.timeout_s = kReplyTimeout;
+  o.batch_interval_s = 0.01;
+  return o;
+}
+
+bool Succeeded(const RegistrationOutcome& r) {
+  return r.result.status() == pb::RESULT_STATUS_OK && r.error && r.error->add_m <= kAddSuccessM;
+}
+
+// A well-behaved headset registers successfully (the server is still serving others).
+void ExpectAnotherHeadsetSucceeds(const ServerProcess& server) {
+  HeadsetOptions o = Options(server);
+  o.client_name = "bystander";
+  const HeadsetRun run = RunHeadset(Scene(1), o);
+  ASSERT_TRUE(run.status.ok()) << run.status.ToString();
+  ASSERT_EQ(run.registrations.size(), 1u);
+  EXPECT_EQ(run.registrations[0].result.status(), pb::RESULT_STATUS_OK);
+}
+
+// Low-level session for tests that script the protocol by hand.
+class ScriptedHeadset {
+ public:
+  explicit ScriptedHeadset(const ServerProcess& server) {
+    auto conn = Connection::Connect("127.0.0.1", server.port(), 30);
+    EXPECT_TRUE(conn.ok()) << conn.status().ToString();
+    if (conn.ok()) conn_ = std::move(*conn);
+  }
+  void Send(const pb::ClientMessage& m) { ASSERT_TRUE(conn_.Send(m).ok()); }
+  pb::ServerMessage Hello(std::uint32_t version = wire::kProtocolVersion) {
+    pb::ClientMessage m;
+    m.mutable_hello()->set_protocol_version(version);
+    m.mutable_hello()->set_client_name("scripted");
+    Send(m);
+    return Next();
+  }
+  void Upload(const HeadsetScene& scene) {
+    for (const auto& s : scene.surfaces) {
+      pb::ClientMessage m;
+      *m.mutable_surface_upsert() = wire::SurfaceToProto(s, FrameConvention::kUnity);
+      Send(m);
+    }
+  }
+  void Seed(const Iso3& T_world_seed) {
+    pb::ClientMessage m;
+    *m.mutable_seed_pose()->mutable_t_world_seed() = wire::PoseToProto(T_world_seed, FrameConvention::kUnity);
+    m.mutable_seed_pose()->set_frame(pb::FRAME_CONVENTION_UNITY);
+    Send(m);
+  }
+  void Request(std::uint64_t id, const std::string& robot = "kr5") {
+    pb::ClientMessage m;
+    m.mutable_register_request()->set_request_id(id);
+    m.mutable_register_request()->set_robot_id(robot);
+    Send(m);
+  }
+  // A request that takes seconds (the paper's ICP on the "big" sample count), so that it is
+  // still running when a cancel arrives.
+  void SlowRequest(std::uint64_t id) {
+    pb::ClientMessage m;
+    m.mutable_register_request()->set_request_id(id);
+    m.mutable_register_request()->set_robot_id("kr5");
+    m.mutable_register_request()->set_method("pcl-icp");
+    m.mutable_register_request()->mutable_params()->set_scene_samples(256000);
+    Send(m);
+  }
+  void Cancel(std::uint64_t id) {
+    pb::ClientMessage m;
+    m.mutable_cancel()->set_request_id(id);
+    Send(m);
+  }
+  pb::ServerMessage Next() {
+    auto m = conn_.Receive(kReplyTimeout);
+    EXPECT_TRUE(m.ok()) << m.status().ToString();
+    return m.ok() ? *m : pb::ServerMessage();
+  }
+  // Reads until a message satisfies pred (other messages are kept in seen()).
+  template <typename Pred>
+  pb::ServerMessage Await(Pred pred) {
+    for (int i = 0; i < 100000; ++i) {
+      auto m = conn_.Receive(kReplyTimeout);
+      if (!m.ok()) {
+        ADD_FAILURE() << "while waiting: " << m.status().ToString();
+        return {};
+      }
+      seen_.push_back(*m);
+      if (pred(*m)) return *m;
+    }
+    return {};
+  }
+  pb::ServerMessage AwaitResult(std::uint64_t id) {
+    return Await([id](const pb::ServerMessage& m) { return m.has_result() && m.result().request_id() == id; });
+  }
+  pb::ServerMessage AwaitError() {
+    return Await([](const pb::ServerMessage& m) { return m.has_error(); });
+  }
+  Result<pb::ServerMessage> Receive(double timeout_s) { return conn_.Receive(timeout_s); }
+  const std::vector<pb::ServerMessage>& seen() const { return seen_; }
+
+ private:
+  Connection conn_;
+  std::vector<pb::ServerMessage> seen_;
+};
+
+// ---------------------------------------------------------------- accuracy
+
+TEST(ServerIntegration, RecoversTruePoseFromUserLikeSeeds) {
+  ServerProcess server;
+  int ok = 0, total = 0;
+  std::vector<double> latencies;
+  for (std::uint64_t cell : {1, 2, 3}) {
+    for (int seed = 0; seed < 3; ++seed) {
+      HeadsetOptions o = Options(server);
+      o.seed_index = seed;
+      const HeadsetRun run = RunHeadset(Scene(cell), o);
+      ASSERT_TRUE(run.status.ok()) << "cell " << cell << " seed " << seed << ": " << run.status.ToString();
+      const auto& r = run.registrations.at(0);
+      ASSERT_TRUE(r.error.has_value());
+      // The Unity pose and the internal matrix describe the same transform.
+      auto M = wire::MatrixFromProto(r.result.t_world_base_internal());
+      ASSERT_TRUE(M.ok());
+      EXPECT_LT((M->matrix() - r.T_world_base.matrix()).cwiseAbs().maxCoeff(), 1e-6);
+      ok += Succeeded(r);
+      ++total;
+      latencies.push_back(r.latency_ms);
+      std::printf("cell %d seed %d: ADD %.1f mm, translation %.1f mm, rotation %.2f deg, %.0f ms\n",
+                  static_cast<int>(cell), seed, r.error->add_m * 1e3, r.error->translation_m * 1e3,
+                  r.error->rotation_deg, r.latency_ms);
+    }
+  }
+  EXPECT_GE(ok, kMinSuccessRate * total) << ok << " of " << total << " within " << kAddSuccessM * 1e3 << " mm ADD";
+}
+
+TEST(ServerIntegration, QuantizedVerticesAndRepeatedRequests) {
+  ServerProcess server;
+  HeadsetOptions o = Options(server);
+  o.quantize_scale = 0.0005;  // 0.5 mm steps: int16 covers +-16 m
+  o.repeat = 2;
+  const HeadsetRun run = RunHeadset(Scene(1), o);
+  ASSERT_TRUE(run.status.ok()) << run.status.ToString();
+  ASSERT_EQ(run.registrations.size(), 2u);
+  for (const auto& r : run.registrations) EXPECT_LE(r.error->add_m, 0.1);
+}
+
+// ---------------------------------------------------------------- concurrency
+
+TEST(ServerIntegration, TwentyConcurrentHeadsetsAllServed) {
+  ServerProcess server({.workers = 2, .queue_size = 32});
+  HeadsetOptions o = Options(server);
+  const auto runs = RunHeadsets(Scene(1), o, 20);
+  int ok = 0, total = 0;
+  std::map<int, Iso3> by_seed;  // the same seed must give the same answer, whoever asked
+  std::set<std::uint64_t> sessions;
+  for (std::size_t i = 0; i < runs.size(); ++i) {
+    ASSERT_TRUE(runs[i].status.ok()) << "headset " << i << ": " << runs[i].status.ToString();
+    ASSERT_EQ(runs[i].registrations.size(), 1u);
+    const auto& r = runs[i].registrations[0];
+    EXPECT_EQ(r.result.session_id(), runs[i].session_id);
+    sessions.insert(runs[i].session_id);
+    const int seed = static_cast<int>(i % Scene(1).seeds.size());
+    if (by_seed.count(seed))
+      EXPECT_LT((by_seed[seed].matrix() - r.T_world_base.matrix()).cwiseAbs().maxCoeff(), 1e-6) << "headset " << i;
+    else
+      by_seed[seed] = r.T_world_base;
+    ok += Succeeded(r);
+    ++total;
+  }
+  EXPECT_EQ(sessions.size(), 20u);
+  EXPECT_GE(ok, kMinSuccessRate * total) << ok << " of " << total;
+  const LatencySummary s = SummarizeLatency(runs);
+  const long rss = server.RssKb();
+  std::printf("20 headsets: latency median %.0f ms, p95 %.0f ms; server VmRSS %ld kB\n", s.median_ms, s.p95_ms, rss);
+  RecordProperty("latency_median_ms", static_cast<int>(s.median_ms));
+  RecordProperty("latency_p95_ms", static_cast<int>(s.p95_ms));
+  RecordProperty("server_rss_kb", static_cast<int>(rss));
+}
+
+TEST(ServerIntegration, BusyWhenTheQueueIsFull) {
+  ServerProcess server({.workers = 1, .queue_size = 1});
+  ScriptedHeadset h(server);
+  ASSERT_TRUE(h.Hello().has_hello_reply());
+  h.Upload(Scene(1));
+  h.Seed(Scene(1).seeds[0]);
+  for (std::uint64_t id = 1; id <= 4; ++id) h.Request(id);
+  std::set<std::uint64_t> accepted, busy, answered;
+  while (accepted.size() + busy.size() < 4 || answered.size() < accepted.size()) {
+    const auto m = h.Next();
+    if (m.has_accepted()) accepted.insert(m.accepted().request_id());
+    if (m.has_error()) {
+      EXPECT_EQ(m.error().code(), pb::ERROR_CODE_BUSY) << m.error().message();
+      EXPECT_NE(m.error().message().find("queue"), std::string::npos);
+      busy.insert(m.error().request_id());
+    }
+    if (m.has_result()) answered.insert(m.result().request_id());
+    if (!m.has_accepted() && !m.has_error() && !m.has_result() && !m.has_progress()) break;
+  }
+  EXPECT_GE(busy.size(), 1u);
+  EXPECT_GE(accepted.size(), 1u);
+  EXPECT_EQ(answered, accepted);  // every accepted request got its result
+}
+
+// ---------------------------------------------------------------- cancellation
+
+TEST(ServerIntegration, CancelQueuedAndRunningRequests) {
+  ServerProcess server({.workers = 1, .queue_size = 8});
+  ScriptedHeadset h(server);
+  ASSERT_TRUE(h.Hello().has_hello_reply());
+  h.Upload(Scene(1));
+  h.Seed(Scene(1).seeds[0]);
+  h.SlowRequest(1);
+  h.Request(2);
+  h.Await([](const pb::ServerMessage& m) { return m.has_accepted() && m.accepted().request_id() == 2; });
+  // Request 2 waits behind request 1 (one worker): cancelling removes it from the queue.
+  h.Cancel(2);
+  const auto queued = h.AwaitResult(2);
+  EXPECT_EQ(queued.result().status(), pb::RESULT_STATUS_CANCELLED);
+  EXPECT_NE(queued.result().message().find("queued"), std::string::npos) << queued.result().message();
+  // Request 1 is running once it reports progress; it stops at its next stage boundary.
+  bool progressed = false;
+  for (const auto& m : h.seen()) progressed |= m.has_progress() && m.progress().request_id() == 1;
+  if (!progressed) h.Await([](const pb::ServerMessage& m) { return m.has_progress() && m.progress().request_id() == 1; });
+  h.Cancel(1);
+  const auto running = h.AwaitResult(1);
+  EXPECT_EQ(running.result().status(), pb::RESULT_STATUS_CANCELLED) << running.result().message();
+  EXPECT_NE(running.result().message().find("running"), std::string::npos) << running.result().message();
+  // Cancelling something not in flight is a clear error; the session still works.
+  h.Cancel(1);
+  const auto unknown = h.AwaitError();
+  EXPECT_EQ(unknown.error().code(), pb::ERROR_CODE_UNKNOWN_REQUEST);
+  h.Request(3);
+  EXPECT_EQ(h.AwaitResult(3).result().status(), pb::RESULT_STATUS_OK);
+}
+
+// ---------------------------------------------------------------- bad input
+
+TEST(ServerIntegration, BadSurfaceIsRejectedAndTheOthersKept) {
+  ServerProcess server;
+  ScriptedHeadset h(server);
+  ASSERT_TRUE(h.Hello().has_hello_reply());
+  h.Upload(Scene(1));
+  Surface bad = Scene(1).surfaces.front();
+  bad.id = 9999;
+  bad.mesh.vertices[0].x() = std::nanf("");
+  pb::ClientMessage m;
+  *m.mutable_surface_upsert() = wire::SurfaceToProto(bad, FrameConvention::kUnity);
+  h.Send(m);
+  auto e = h.AwaitError();
+  EXPECT_EQ(e.error().code(), pb::ERROR_CODE_BAD_SURFACE);
+  EXPECT_EQ(e.error().surface_id(), 9999u);
+  EXPECT_NE(e.error().message().find("9999"), std::string::npos) << e.error().message();
+  EXPECT_FALSE(e.error().fatal());
+  // Out-of-range triangle index, and a missing frame convention.
+  m.mutable_surface_upsert()->set_surface_id(9998);
+  *m.mutable_surface_upsert() = wire::SurfaceToProto(Scene(1).surfaces.front(), FrameConvention::kUnity);
+  m.mutable_surface_upsert()->set_surface_id(9998);
+  m.mutable_surface_upsert()->set_triangles(0, 1u << 30);
+  h.Send(m);
+  e = h.AwaitError();
+  EXPECT_EQ(e.error().code(), pb::ERROR_CODE_BAD_SURFACE);
+  EXPECT_EQ(e.error().surface_id(), 9998u);
+  m.mutable_surface_upsert()->set_triangles(0, 0);
+  m.mutable_surface_upsert()->set_frame(pb::FRAME_CONVENTION_UNSPECIFIED);
+  h.Send(m);
+  e = h.AwaitError();
+  EXPECT_EQ(e.error().code(), pb::ERROR_CODE_BAD_SURFACE);
+  EXPECT_NE(e.error().message().find("frame"), std::string::npos) << e.error().message();
+  // The good surfaces are all still there: registration works as before.
+  h.Seed(Scene(1).seeds[0]);
+  h.Request(1);
+  const auto r = h.AwaitResult(1);
+  ASSERT_EQ(r.result().status(), pb::RESULT_STATUS_OK) << r.result().message();
+  EXPECT_GT(r.result().scene_triangles(), 1000u);
+}
+
+TEST(ServerIntegration, ClearErrorsForBadRequests) {
+  ServerProcess server;
+  {
+    ScriptedHeadset h(server);  // not starting with Hello
+    pb::ClientMessage ping;
+    ping.mutable_ping()->set_nonce(1);
+    h.Send(ping);
+    const auto e = h.Next();
+    EXPECT_EQ(e.error().code(), pb::ERROR_CODE_NOT_READY);
+    EXPECT_TRUE(e.error().fatal());
+  }
+  ScriptedHeadset h(server);
+  const auto hello = h.Hello();
+  ASSERT_EQ(hello.hello_reply().robots_size(), 1);
+  EXPECT_EQ(hello.hello_reply().robots(0).id(), "kr5");
+  EXPECT_EQ(hello.hello_reply().robots(0).joint_names_size(), 6);
+  h.Request(1);
+  auto e = h.AwaitError();
+  EXPECT_EQ(e.error().code(), pb::ERROR_CODE_NO_SEED);
+  EXPECT_EQ(e.error().request_id(), 1u);
+  h.Seed(Scene(1).seeds[0]);
+  h.Request(2);
+  e = h.AwaitError();
+  EXPECT_EQ(e.error().code(), pb::ERROR_CODE_NO_SCENE);
+  h.Upload(Scene(1));
+  h.Request(3, "ur5");
+  e = h.AwaitError();
+  EXPECT_EQ(e.error().code(), pb::ERROR_CODE_UNKNOWN_ROBOT);
+  EXPECT_NE(e.error().message().find("ur5"), std::string::npos);
+  EXPECT_NE(e.error().message().find("kr5"), std::string::npos);
+  pb::ClientMessage joints;
+  joints.mutable_joint_state()->set_robot_id("kr5");
+  joints.mutable_joint_state()->add_names("joint_nope");
+  joints.mutable_joint_state()->add_positions(0.1);
+  h.Send(joints);
+  e = h.AwaitError();
+  EXPECT_EQ(e.error().code(), pb::ERROR_CODE_INVALID_ARGUMENT);
+  EXPECT_NE(e.error().message().find("joint_nope"), std::string::npos) << e.error().message();
+  pb::ClientMessage req;
+  req.mutable_register_request()->set_request_id(4);
+  req.mutable_register_request()->set_robot_id("kr5");
+  req.mutable_register_request()->mutable_params()->set_crop_radius_m(-1);
+  h.Send(req);
+  e = h.AwaitError();
+  EXPECT_EQ(e.error().code(), pb::ERROR_CODE_INVALID_ARGUMENT);
+  EXPECT_NE(e.error().message().find("crop_radius_m"), std::string::npos) << e.error().message();
+  h.Request(5);  // the session survived all of it
+  EXPECT_EQ(h.AwaitResult(5).result().status(), pb::RESULT_STATUS_OK);
+}
+
+TEST(ServerIntegration, VersionMismatchNamesBothVersions) {
+  ServerProcess server;
+  ScriptedHeadset h(server);
+  const auto reply = h.Hello(7);
+  ASSERT_TRUE(reply.has_error());
+  EXPECT_EQ(reply.error().code(), pb::ERROR_CODE_VERSION_MISMATCH);
+  EXPECT_TRUE(reply.error().fatal());
+  EXPECT_NE(reply.error().message().find("version 7"), std::string::npos) << reply.error().message();
+  EXPECT_NE(reply.error().message().find("version 1"), std::string::npos) << reply.error().message();
+  auto closed = h.Receive(30);
+  EXPECT_EQ(closed.status().code(), StatusCode::kUnavailable);
+  ExpectAnotherHeadsetSucceeds(server);
+}
+
+// Each misbehaviour flag of the mock headset executable gets a clear error (or a logged
+// drop), and the server keeps serving other headsets.
+TEST(ServerIntegration, MisbehavingHeadsetsDoNotHurtOthers) {
+  ServerProcess server({.max_send_queue_bytes = 1u << 20});
+  struct Case {
+    std::string flag;
+    std::string expected_output;
+  };
+  const std::vector<Case> cases{
+      {"--corrupt-frame", "MALFORMED_MESSAGE"},
+      {"--oversized-message", "MESSAGE_TOO_LARGE"},
+      {"--never-read-replies", "dropped this session"},
+      {"--disconnect-mid-upload", "disconnected mid-upload"},
+      {"--protocol-version 2", "client speaks protocol version 2, this server speaks version 1"},
+  };
+  for (const auto& c : cases) {
+    const std::string cmd = kMockPath + " --host 127.0.0.1 --port " + std::to_string(server.port()) +
+                            " --batch-interval 0.01 --timeout 120 " + c.flag + " 2>&1";
+    FILE* pipe = popen(cmd.c_str(), "r");
+    ASSERT_NE(pipe, nullptr);
+    std::string output;
+    char buf[4096];
+    while (std::fgets(buf, sizeof buf, pipe)) output += buf;
+    const int status = pclose(pipe);
+    EXPECT_TRUE(WIFEXITED(status) && WEXITSTATUS(status) != 0) << c.flag << " exited 0:\n" << output;
+    EXPECT_NE(output.find(c.expected_output), std::string::npos) << c.flag << ":\n" << output;
+    ASSERT_TRUE(server.alive()) << "server died after " << c.flag;
+    ExpectAnotherHeadsetSucceeds(server);
+  }
+  const std::string log = server.Log();
+  EXPECT_NE(log.find("send queue limit"), std::string::npos) << "the drop of the non-reading client is logged";
+  EXPECT_NE(log.find("client closed the connection"), std::string::npos);
+}
+
+TEST(ServerIntegration, SessionLimitIsAClearError) {
+  ServerProcess server({.max_sessions = 2});
+  ScriptedHeadset a(server), b(server);
+  ASSERT_TRUE(a.Hello().has_hello_reply());
+  ASSERT_TRUE(b.Hello().has_hello_reply());
+  ScriptedHeadset c(server);
+  const auto e = c.Next();
+  EXPECT_EQ(e.error().code(), pb::ERROR_CODE_LIMIT_EXCEEDED);
+  EXPECT_NE(e.error().message().find("max_sessions"), std::string::npos) << e.error().message();
+}
+
+// ---------------------------------------------------------------- subscriptions
+
+TEST(ServerIntegration, SubscribersReceiveResultsOfTheirRobot) {
+  ServerProcess server;
+  ScriptedHeadset watcher(server);
+  ASSERT_TRUE(watcher.Hello().has_hello_reply());
+  pb::ClientMessage sub;
+  sub.mutable_subscribe()->set_robot_id("kr5");
+  watcher.Send(sub);
+  ASSERT_TRUE(watcher.Next().has_subscribed());
+  HeadsetOptions o = Options(server);
+  const HeadsetRun run = RunHeadset(Scene(1), o);
+  ASSERT_TRUE(run.status.ok()) << run.status.ToString();
+  const auto pushed = watcher.Await([](const pb::ServerMessage& m) { return m.has_result(); });
+  EXPECT_EQ(pushed.result().session_id(), run.session_id);
+  EXPECT_EQ(pushed.result().robot_id(), "kr5");
+  EXPECT_EQ(pushed.result().status(), pb::RESULT_STATUS_OK);
+}
+
+// ---------------------------------------------------------------- shutdown
+
+TEST(ServerIntegration, GracefulShutdownAnswersEveryAcceptedRequest) {
+  ServerProcess server({.workers = 1, .queue_size = 16});
+  std::vector<std::unique_ptr<ScriptedHeadset>> headsets;
+  std::vector<std::set<std::uint64_t>> accepted(3);
+  for (int i = 0; i < 3; ++i) {
+    headsets.push_back(std::make_unique<ScriptedHeadset>(server));
+    auto& h = *headsets.back();
+    ASSERT_TRUE(h.Hello().has_hello_reply());
+    h.Upload(Scene(1));
+    h.Seed(Scene(1).seeds[static_cast<std::size_t>(i)]);
+    h.Request(1);
+    h.Request(2);
+    for (int k = 0; k < 2; ++k)
+      accepted[i].insert(h.Await([](const pb::ServerMessage& m) { return m.has_accepted(); }).accepted().request_id());
+  }
+  EXPECT_EQ(server.SignalAndWait(SIGTERM, 180), 0) << server.Log();
+  int ok = 0, cancelled = 0;
+  for (int i = 0; i < 3; ++i) {
+    std::map<std::uint64_t, pb::ResultStatus> answers;
+    bool shutdown_notice = false;
+    for (const auto& m : headsets[i]->seen()) {  // results that came before the signal
+      if (m.has_result()) answers[m.result().request_id()] = m.result().status();
+    }
+    while (true) {
+      auto m = headsets[i]->Receive(30);
+      if (!m.ok()) break;  // closed by the server after its last reply
+      shutdown_notice |= m->has_shutdown();
+      if (m->has_result()) answers[m->result().request_id()] = m->result().status();
+    }
+    EXPECT_TRUE(shutdown_notice) << "headset " << i;
+    for (std::uint64_t id : accepted[i]) {
+      ASSERT_TRUE(answers.count(id)) << "headset " << i << " request " << id << " lost";
+      EXPECT_TRUE(answers[id] == pb::RESULT_STATUS_OK || answers[id] == pb::RESULT_STATUS_CANCELLED);
+      ok += answers[id] == pb::RESULT_STATUS_OK;
+      cancelled += answers[id] == pb::RESULT_STATUS_CANCELLED;
+    }
+  }
+  EXPECT_GE(ok, 1) << "the running job finishes and delivers its result";
+  EXPECT_GE(cancelled, 1) << "queued jobs are cancelled";
+}
+
+}  // namespace
+}  // namespace arref::headset

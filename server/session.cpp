@@ -31,8 +31,23 @@ pb::ErrorCode ErrorCodeFor(const Status& status) {
   }
 }
 
+pb::ResultStatus ToProto(ResultStatus status) {
+  switch (status) {
+    case ResultStatus::kOk: return pb::RESULT_STATUS_OK;
+    case ResultStatus::kLowConfidence: return pb::RESULT_STATUS_LOW_CONFIDENCE;
+    case ResultStatus::kFailed: return pb::RESULT_STATUS_FAILED;
+  }
+  return pb::RESULT_STATUS_FAILED;
+}
+
 void FillReport(const RegistrationReport& report, FrameConvention frame, pb::Result* r) {
-  r->set_status(pb::RESULT_STATUS_OK);
+  r->set_status(ToProto(report.status));
+  if (report.status == ResultStatus::kFailed) r->set_error_code(pb::ERROR_CODE_REGISTRATION_FAILED);
+  r->set_message(report.status_reason);
+  r->set_rms_points(report.rms_points);
+  r->set_score(report.score);
+  r->set_margin(report.margin);
+  r->set_hypotheses(report.hypotheses);
   *r->mutable_t_world_base() = wire::PoseToProto(report.T_world_base, frame);
   r->set_frame(wire::ToProto(frame));
   wire::MatrixToProto(report.T_world_base, r->mutable_t_world_base_internal());

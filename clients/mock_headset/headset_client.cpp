@@ -405,7 +405,8 @@ class Runner {
     outcome.request_id = result.request_id();
     outcome.result = result;
     outcome.latency_ms = std::chrono::duration<double, std::milli>(Clock::now() - sent).count();
-    if (result.status() == pb::RESULT_STATUS_OK) {
+    const bool has_pose = result.status() == pb::RESULT_STATUS_OK || result.status() == pb::RESULT_STATUS_LOW_CONFIDENCE;
+    if (has_pose) {
       auto T = wire::PoseFromProto(result.t_world_base(), FrameConvention::kUnity);
       if (!T.ok()) return Fail(T.status().WithContext("result pose"));
       outcome.T_world_base = *T;
@@ -413,7 +414,7 @@ class Runner {
         outcome.error = ComparePoses(*T, *scene_.T_world_base_true, scene_.model_points);
     }
     out_->registrations.push_back(outcome);
-    if (result.status() != pb::RESULT_STATUS_OK)
+    if (!has_pose)
       return Fail(Status(result.status() == pb::RESULT_STATUS_CANCELLED ? StatusCode::kCancelled
                                                                          : StatusCode::kFailedPrecondition,
                          fmt::format("request {}: {}: {}", result.request_id(), pb::ResultStatus_Name(result.status()),

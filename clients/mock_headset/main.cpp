@@ -132,11 +132,19 @@ void PrintHuman(const HeadsetRun& run) {
     std::cout << fmt::format("request {}: {} in {:.0f} ms (server {:.0f} ms, queued {:.0f} ms)\n", r.request_id,
                              wire::pb::ResultStatus_Name(r.result.status()), r.latency_ms, r.result.server_ms(),
                              r.result.queue_ms());
-    if (r.result.status() != wire::pb::RESULT_STATUS_OK) continue;
+    if (!r.result.message().empty()) std::cout << "  " << r.result.message() << "\n";
+    if (r.result.status() != wire::pb::RESULT_STATUS_OK && r.result.status() != wire::pb::RESULT_STATUS_LOW_CONFIDENCE)
+      continue;
     std::cout << fmt::format("  T_world_base (Unity): position ({:.4f}, {:.4f}, {:.4f}) rotation ({:.4f}, {:.4f}, {:.4f}, {:.4f})\n",
                              p.position().x(), p.position().y(), p.position().z(), p.orientation().x(),
                              p.orientation().y(), p.orientation().z(), p.orientation().w());
-    std::cout << fmt::format("  rms {:.1f} mm, inliers {:.1f} %, {} iterations\n", r.result.rms_m() * 1e3,
+    const auto& m = r.result.t_world_base_internal();
+    if (m.size() == 16)
+      for (int row = 0; row < 4; ++row)
+        std::cout << fmt::format("  {}{:+.5f} {:+.5f} {:+.5f} {:+.5f}\n", row == 0 ? "T_world_base (internal) " : "                        ",
+                                 m[4 * row], m[4 * row + 1], m[4 * row + 2], m[4 * row + 3]);
+    std::cout << fmt::format("  {}: rms {:.1f} mm ({} model points), inliers {:.1f} %, {} iterations\n",
+                             r.result.method(), r.result.rms_m() * 1e3, r.result.rms_points(),
                              r.result.inlier_fraction() * 100, r.result.iterations());
     if (r.error)
       std::cout << fmt::format("  vs truth: ADD {:.1f} mm, translation {:.1f} mm, rotation {:.2f} deg\n",

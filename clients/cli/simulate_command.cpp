@@ -24,6 +24,9 @@ struct SimulateArgs {
   int clutter = -1;
   bool second_robot = false;
   double pedestal = 0;
+  bool no_robot = false;
+  bool seed_any_yaw = false;
+  double seed_max_offset = 0;
 };
 
 int Run(const SimulateArgs& args) {
@@ -43,6 +46,9 @@ int Run(const SimulateArgs& args) {
   options.cell.second_robot = args.second_robot;
   options.cell.pedestal_height_m = args.pedestal;
   options.seed_count = args.seeds;
+  options.cell.robot_present = !args.no_robot;
+  options.seed_noise.any_yaw = args.seed_any_yaw;
+  options.seed_noise.max_horizontal_m = args.seed_max_offset;
 
   auto cell = sim::SimulateCell(*robot, options, args.rng_seed);
   if (!cell.ok()) return Fail(cell.status().WithContext("simulating the cell"));
@@ -93,6 +99,11 @@ void AddSimulateCommand(CLI::App& app, int* exit_code) {
   cmd->add_option("--clutter", args->clutter, "Number of clutter boxes")->check(CLI::Range(0, 200));
   cmd->add_flag("--second-robot", args->second_robot, "Place a second robot nearby");
   cmd->add_option("--pedestal", args->pedestal, "Pedestal height under the robot, m")->check(CLI::Range(0.0, 3.0));
+  cmd->add_flag("--no-robot", args->no_robot, "Leave the robot out (seeds still point at its place)");
+  cmd->add_flag("--seed-any-yaw", args->seed_any_yaw, "Seeds with any yaw error (uniform over the circle)");
+  cmd->add_option("--seed-max-offset", args->seed_max_offset,
+                  "Seeds' horizontal error uniform in a disc of this radius, m (0: user-like Gaussian)")
+      ->check(CLI::Range(0.0, 3.0));
   cmd->callback([args, exit_code] { *exit_code = Run(*args); });
 }
 

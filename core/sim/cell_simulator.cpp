@@ -239,9 +239,10 @@ Result<TriangleMesh> ScanAndFuse(const CellScene& scene, const SimOptions& optio
   TsdfVolume volume(tsdf);
   const std::vector<View> views = WalkingPath(scan, scene.T_cell_base, rng);
   for (int i = 0; i < static_cast<int>(views.size()); ++i) {
-    RangeImage range = caster->Render(camera, views[i].T_cell_camera_true, scan.max_range_m);
+    std::vector<float> incidence;
+    RangeImage range = caster->Render(camera, views[i].T_cell_camera_true, scan.max_range_m, &incidence);
     AddRangeNoise(range, scan, rng_seed, i);
-    ARREF_RETURN_IF_ERROR(volume.Integrate(camera, T_world_cell * views[i].T_cell_camera_believed, range));
+    ARREF_RETURN_IF_ERROR(volume.Integrate(camera, T_world_cell * views[i].T_cell_camera_believed, range, incidence));
   }
   spdlog::debug("sim: fused {} views into {} blocks of {}^3 voxels", views.size(), volume.block_count(),
                 TsdfVolume::kBlock);
@@ -295,9 +296,17 @@ std::vector<Iso3> DrawSeeds(const Iso3& T_world_base, const SeedNoise& noise, in
   const Eigen::Matrix3d R = T_world_base.linear();
   const double yaw = std::atan2(R(1, 0), R(0, 0));
   std::vector<Iso3> seeds;
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
   for (int i = 0; i < count; ++i) {
-    const double dx = horizontal(rng), dy = horizontal(rng), dz = vertical(rng);
-    seeds.push_back(MakeYawPose(base.x() + dx, base.y() + dy, base.z() + dz, yaw + yaw_error(rng)));
+    double dx = horizontal(rng), dy = horizontal(rng);
+    if (noise.max_horizontal_m > 0) {  // uniform in the disc: radius ~ sqrt(u)
+      const double r = noise.max_horizontal_m * std::sqrt(unit(rng)), a = 2 * std::numbers::pi * unit(rng);
+      dx = r * std::cos(a);
+      dy = r * std::sin(a);
+    }
+    const double dz = vertical(rng);
+    const double dyaw = noise.any_yaw ? std::numbers::pi * (2 * unit(rng) - 1) : yaw_error(rng);
+    seeds.push_back(MakeYawPose(base.x() + dx, base.y() + dy, base.z() + dz, yaw + dyaw));
   }
   return seeds;
 }

@@ -254,7 +254,8 @@ Result<CellScene> BuildCellScene(const RobotModel& robot, const CellOptions& opt
 
   scene.T_cell_base = Iso3(Eigen::Translation3d(0, 0, options.pedestal_height_m));
   scene.footprint_cell = Translated(FootprintOf(*posed), scene.T_cell_base.translation());
-  scene.mesh.Append(*posed, scene.T_cell_base);
+  // Without the robot the footprint stays reserved, so the rest of the cell is laid out alike.
+  if (options.robot_present) scene.mesh.Append(*posed, scene.T_cell_base);
   scene.props.push_back({"robot_footprint", scene.footprint_cell});
 
   Layout layout{&scene, {Grown(scene.footprint_cell, 0.05)}, {}, BoundsOf(MakeFloor(kFloorSize).vertices),

@@ -57,12 +57,14 @@ Eigen::Vector3i TsdfVolume::BlockOf(const Vec3& p) const {
   return b;
 }
 
-Status TsdfVolume::Integrate(const PinholeCamera& camera, const Iso3& T_volume_camera, const RangeImage& range) {
+Status TsdfVolume::Integrate(const PinholeCamera& camera, const Iso3& T_volume_camera, const RangeImage& range,
+                             const std::vector<float>& incidence) {
+  if (incidence.size() != range.size()) return Status::InvalidArgument("TSDF: incidence image size differs from range");
   ARREF_RETURN_IF_ERROR(AllocateBand(camera, T_volume_camera, range));
   const Iso3 T_camera_volume = T_volume_camera.inverse();
   // Each block is updated by one task, so the result does not depend on scheduling.
   tbb::parallel_for(std::size_t{0}, blocks_.size(),
-                    [&](std::size_t i) { UpdateBlock(blocks_[i], camera, T_camera_volume, range); });
+                    [&](std::size_t i) { UpdateBlock(blocks_[i], camera, T_camera_volume, range, incidence); });
   return Status::Ok();
 }
 
@@ -104,7 +106,7 @@ Status TsdfVolume::AllocateBand(const PinholeCamera& camera, const Iso3& T_volum
 }
 
 void TsdfVolume::UpdateBlock(Block& block, const PinholeCamera& camera, const Iso3& T_camera_volume,
-                             const RangeImage& range) const {
+                             const RangeImage& range, const std::vector<float>& incidence) const {
   const double v = options_.voxel_m;
   const double trunc = options_.truncation_m;
   const Vec3 origin = T_camera_volume * (block.index.cast<double>() * (B * v));
@@ -117,7 +119,8 @@ void TsdfVolume::UpdateBlock(Block& block, const PinholeCamera& camera, const Is
         const Vec3 p = origin + step * Vec3(x, y, z);
         const int pixel = camera.PixelOf(p);
         if (pixel < 0 || range[pixel] <= 0) continue;
-        const double sdf = range[pixel] - p.norm();
+        // Distance along the ray times the incidence cosine: distance to the surface's plane.
+        const double sdf = (range[pixel] - p.norm()) * std::max(0.1f, incidence[pixel]);
         if (sdf < -trunc) continue;  // hidden behind the measured surface: no information
         Voxel& vox = block.voxels[LocalIndex(x, y, z)];
         const float d = static_cast<float>(std::min(1.0, sdf / trunc));

@@ -30,7 +30,11 @@ class TsdfVolume {
 
   // Fuses one range image taken from T_volume_camera (the pose the mapper believes, which
   // need not be the pose the image was really taken from).
-  Status Integrate(const PinholeCamera& camera, const Iso3& T_volume_camera, const RangeImage& range);
+  // incidence: per pixel |cos| between ray and surface (RayCaster::Render). The distance along
+  // a ray overstates the distance to a slanted surface by 1/cos; without the correction the
+  // overstated positive side of grazing views drags horizontal surfaces ~5 mm down.
+  Status Integrate(const PinholeCamera& camera, const Iso3& T_volume_camera, const RangeImage& range,
+                   const std::vector<float>& incidence);
 
   // Naive Surface Nets in the volume frame: a vertex per sign-changing cell, a quad per
   // sign-changing edge, only where every voxel involved was observed. Counter-clockwise
@@ -56,7 +60,7 @@ class TsdfVolume {
   Eigen::Vector3i BlockOf(const Vec3& p) const;
   Status AllocateBand(const PinholeCamera& camera, const Iso3& T_volume_camera, const RangeImage& range);
   void UpdateBlock(Block& block, const PinholeCamera& camera, const Iso3& T_camera_volume,
-                   const RangeImage& range) const;
+                   const RangeImage& range, const std::vector<float>& incidence) const;
   // For each block, its 27 neighbours (self at 13) as indices into blocks_, -1 if absent.
   std::vector<NeighbourTable> Neighbours() const;
   // Voxel at local coordinates in [-1, kBlock] of the block whose neighbours are nb.

@@ -69,8 +69,10 @@ Result<RayCaster> RayCaster::Create(const TriangleMesh& mesh) {
   return RayCaster(std::move(impl));
 }
 
-RangeImage RayCaster::Render(const PinholeCamera& camera, const Iso3& T_scene_camera, double max_range_m) const {
+RangeImage RayCaster::Render(const PinholeCamera& camera, const Iso3& T_scene_camera, double max_range_m,
+                             std::vector<float>* incidence) const {
   RangeImage range(static_cast<std::size_t>(camera.width) * camera.height, 0.0f);
+  if (incidence) incidence->assign(range.size(), 0.0f);
   const Eigen::Matrix3d R = T_scene_camera.linear();
   const Vec3 origin = T_scene_camera.translation();
   tbb::parallel_for(0, camera.height, [&](int v) {
@@ -91,7 +93,13 @@ RangeImage RayCaster::Render(const PinholeCamera& camera, const Iso3& T_scene_ca
       rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
       rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
       rtcIntersect1(impl_->scene, &context, &rh);
-      if (rh.hit.geomID != RTC_INVALID_GEOMETRY_ID) range[static_cast<std::size_t>(v) * camera.width + u] = rh.ray.tfar;
+      if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) continue;
+      const std::size_t pixel = static_cast<std::size_t>(v) * camera.width + u;
+      range[pixel] = rh.ray.tfar;
+      if (incidence) {
+        const Vec3 n(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z);
+        (*incidence)[pixel] = static_cast<float>(std::abs(n.normalized().dot(dir)));
+      }
     }
   });
   return range;

@@ -35,7 +35,10 @@ class RayCaster {
   RayCaster& operator=(RayCaster&&) noexcept;
   ~RayCaster();
 
-  RangeImage Render(const PinholeCamera& camera, const Iso3& T_scene_camera, double max_range_m) const;
+  // With `incidence`, also |cos| of the angle between each pixel's ray and the surface it hits
+  // (0 where nothing is hit).
+  RangeImage Render(const PinholeCamera& camera, const Iso3& T_scene_camera, double max_range_m,
+                    std::vector<float>* incidence = nullptr) const;
 
  private:
   struct Impl;

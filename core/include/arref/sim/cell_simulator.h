@@ -17,6 +17,7 @@ namespace arref::sim {
 // What stands in the cell. Lengths in metres; the robot base is at the cell origin.
 struct CellOptions {
   JointValues joints;               // robot pose; unnamed joints are 0
+  bool robot_present = true;        // false: an empty cell (where a registration must not say OK)
   double pedestal_height_m = 0.0;   // 0: robot on the floor
   bool walls = true;                // two walls meeting behind the robot
   bool table = true;                // a table beside the robot
@@ -55,6 +56,8 @@ struct SeedNoise {
   double horizontal_sigma_m = 0.07;  // per axis: ~0.1 m typical horizontal error
   double vertical_max_m = 0.3;       // uniform in [0, vertical_max_m] above the base
   double yaw_sigma_deg = 15.0;
+  bool any_yaw = false;              // yaw error uniform over the full circle instead
+  double max_horizontal_m = 0.0;     // > 0: horizontal offset uniform in a disc of this radius instead
 };
 
 struct SimOptions {

@@ -31,8 +31,8 @@ struct ArrefIcpParams {
   double position_step_m = 0.3;    // the expanded search's grid step around the seed
   int position_steps = 1;          // grid of (2 * steps + 1)^2 positions
   double expand_below_score = 0.35;  // widen the search when the best coarse score is lower
-  std::size_t coarse_points = 400;
-  std::size_t fine_points = 3000;
+  std::size_t coarse_points = 250;
+  std::size_t fine_points = 2000;
   int refine_top = 2;
   bool final_six_dof = false;      // a last 6-DoF step would absorb tilt of the headset world (robots stand upright)
 };

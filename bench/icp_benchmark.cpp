@@ -1,0 +1,97 @@
+// One ICP iteration: arref's point-to-plane kernel against PCL 1.13's ICP, on the same
+// simulated small-configuration KR5 cell (16,000 scene points). The hardware floor from the
+// domain notes is N_source x ~150 ns / threads; the counters report ns per source point.
+//   build/bench/arref_icp_benchmark --benchmark_repetitions=5 --benchmark_report_aggregates_only=true
+#include <benchmark/benchmark.h>
+#include <pcl/point_types.h>
+#include <pcl/registration/icp.h>
+#include <tbb/global_control.h>
+
+#include "arref/builtin.h"
+#include "arref/fast_icp.h"
+#include "arref/pipeline.h"
+#include "arref/sim/cell_simulator.h"
+#include "arref/spatial_mesh.h"
+
+namespace arref {
+namespace {
+
+struct Fixture {
+  PointCloud model;  // visible robot points, base frame
+  PointCloud scene;  // 16,000 world points with normals
+  Iso3 T_world_base;
+};
+
+const Fixture& Cell() {
+  static const Fixture f = [] {
+    auto robot = RobotModel::Load(*BuiltinRobotUrdf());
+    auto cell = sim::SimulateCell(*robot, sim::SmallPreset(), 1);
+    SpatialMesh map;
+    for (auto& s : cell->surfaces) (void)map.Upsert(s);
+    Fixture out;
+    out.T_world_base = cell->T_world_base;
+    auto model = SampleRobot(*robot, cell->joints, 10000, 1);
+    std::vector<std::uint32_t> visible;
+    for (std::size_t i = 0; i < model->size(); ++i)
+      if (model->visibility[i] > 0) visible.push_back(static_cast<std::uint32_t>(i));
+    out.model = model->Subset(visible);
+    out.scene = SampleSurface(CropToSphere(map.MergedWorld(), cell->T_world_base.translation(), 2.0), 16000, 1);
+    return out;
+  }();
+  return f;
+}
+
+PointCloud FirstN(const PointCloud& c, std::size_t n) {
+  std::vector<std::uint32_t> keep;
+  for (std::size_t i = 0; i < std::min(n, c.size()); ++i) keep.push_back(static_cast<std::uint32_t>(i));
+  return c.Subset(keep);
+}
+
+// 1 cm off the truth, as in the last iterations of a registration.
+Iso3 NearTruth() { return MakeYawPose(0.01, 0, 0, 0) * Cell().T_world_base; }
+
+void BM_ArrefIteration(benchmark::State& state) {
+  tbb::global_control threads(tbb::global_control::max_allowed_parallelism, static_cast<std::size_t>(state.range(1)));
+  const PointCloud source = FirstN(Cell().model, static_cast<std::size_t>(state.range(0)));
+  const TargetCloud target(Cell().scene);
+  IcpSettings s;
+  s.max_iterations = 1;
+  s.max_correspondence_m = 0.05;
+  for (auto _ : state) benchmark::DoNotOptimize(AlignPointToPlane(source, target, NearTruth(), s));
+  // Seconds per source point per iteration (printed with an SI prefix, e.g. 120n).
+  state.counters["per_point"] = benchmark::Counter(static_cast<double>(source.size()),
+                                                   benchmark::Counter::kIsIterationInvariantRate | benchmark::Counter::kInvert);
+  state.counters["floor_ms"] = static_cast<double>(source.size()) * 150e-6 / static_cast<double>(state.range(1));
+}
+
+pcl::PointCloud<pcl::PointXYZ>::Ptr ToPcl(const PointCloud& c) {
+  auto out = pcl::make_shared<pcl::PointCloud<pcl::PointXYZ>>();
+  for (const auto& p : c.points) out->push_back(pcl::PointXYZ(p.x(), p.y(), p.z()));
+  return out;
+}
+
+// PCL ICP is single-threaded; one align() with one iteration, target tree built once.
+void BM_PclIteration(benchmark::State& state) {
+  const PointCloud source = FirstN(Cell().model, static_cast<std::size_t>(state.range(0)));
+  pcl::IterativeClosestPoint<pcl::PointXYZ, pcl::PointXYZ> icp;
+  icp.setInputSource(ToPcl(source));
+  icp.setInputTarget(ToPcl(Cell().scene));
+  icp.setMaxCorrespondenceDistance(0.1);
+  icp.setMaximumIterations(1);
+  const Eigen::Matrix4f guess = NearTruth().matrix().cast<float>();
+  pcl::PointCloud<pcl::PointXYZ> aligned;
+  for (auto _ : state) {
+    icp.align(aligned, guess);
+    benchmark::DoNotOptimize(aligned);
+  }
+  state.counters["per_point"] = benchmark::Counter(static_cast<double>(source.size()),
+                                                   benchmark::Counter::kIsIterationInvariantRate | benchmark::Counter::kInvert);
+}
+
+BENCHMARK(BM_ArrefIteration)->ArgsProduct({{2000, 5000}, {1, 2}})->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_PclIteration)->Arg(2000)->Arg(5000)->Unit(benchmark::kMillisecond);
+
+}  // namespace
+}  // namespace arref
+
+BENCHMARK_MAIN();

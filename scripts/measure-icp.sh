@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Measures `arref register` (default method) from user-like seeds on simulated small-preset
 # cells and prints success rates, median errors and median stage times.
-# Usage: [METHOD=name] [SIM_ARGS="--table-gap 0.05 ..."] scripts/measure-icp.sh [CELLS] [SEEDS_PER_CELL] [robot args...]
+# Usage: [METHOD=name] [SIM_ARGS="--table-gap 0.05 ..."] [REGISTER_ARGS="--samples 256000"] scripts/measure-icp.sh [CELLS] [SEEDS_PER_CELL] [robot args...]
 # e.g.   scripts/measure-icp.sh 10 10 --robot ../shared/robots/kuka_kr5_support/urdf/kr5_arc.urdf --package-path ../shared/robots
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -11,7 +11,7 @@ out=$(mktemp -d)
 for ((c = 1; c <= cells; c++)); do
   $arref simulate "$@" ${SIM_ARGS:-} --rng-seed "$c" --seeds "$seeds" --mesh-out "$out/c$c.ply" --truth-out "$out/c$c.json" 2>/dev/null
   for ((s = 0; s < seeds; s++)); do
-    $arref register "$@" --method "${METHOD:-arref-icp}" --scene "$out/c$c.ply" --truth "$out/c$c.json" --seed-index "$s" --json >> "$out/results.jsonl" || true
+    $arref register "$@" ${REGISTER_ARGS:-} --method "${METHOD:-arref-icp}" --scene "$out/c$c.ply" --truth "$out/c$c.json" --seed-index "$s" --json >> "$out/results.jsonl" || true
   done
 done
 python3 - "$out/results.jsonl" <<'PY'

@@ -11,6 +11,7 @@
 #include <chrono>
 #include <cmath>
 #include <numbers>
+#include <optional>
 
 #include <tbb/parallel_for.h>
 
@@ -117,7 +118,9 @@ Result<RegistrationOutput> RegisterArrefIcp(const MethodInput& in) {
   const PointCloud visible = VisiblePoints(in.model_base);
   const PointCloud coarse = Thin(visible, p.coarse_points);
   const PointCloud fine = Thin(visible, p.fine_points);
-  const TargetCloud target(in.scene_world);
+  std::optional<TargetCloud> own_target;
+  if (!in.scene_target) own_target.emplace(in.scene_world);
+  const TargetCloud& target = in.scene_target ? *in.scene_target : *own_target;
 
   RegistrationOutput out;
   out.stages = {"yaw-search"};

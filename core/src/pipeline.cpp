@@ -4,6 +4,7 @@
 
 #include <chrono>
 
+#include "arref/fast_icp.h"
 #include "arref/metrics.h"
 #include "arref/model_visibility.h"
 #include "arref/nearest_neighbor.h"
@@ -134,8 +135,11 @@ Result<RegistrationReport> RegisterScene(const PointCloud& model_base, const Tri
   report.scene_points = scene.size();
   report.model_points = model_base.size();
 
+  clock.Start("index", 0.28);
+  // One k-d tree of the scene serves the method (when it takes one) and the evaluation.
+  const TargetCloud target(scene);
   clock.Start("register", 0.3);
-  auto out = MethodInfoOf(options.method).run(MethodInput{model_base, scene, T_world_seed, options});
+  auto out = MethodInfoOf(options.method).run(MethodInput{model_base, scene, T_world_seed, options, &target});
   if (!out.ok()) return out.status().WithContext(report.method);
   report.T_world_base = out->T_world_base;
   report.iterations = out->iterations;
@@ -146,7 +150,7 @@ Result<RegistrationReport> RegisterScene(const PointCloud& model_base, const Tri
   report.stages_run.insert(report.stages_run.end(), out->stages.begin(), out->stages.end());
 
   clock.Start("evaluate", 0.9);
-  const PointIndex scene_index(scene.points);
+  const PointIndex& scene_index = target.index();
   const bool visible_only = MethodInfoOf(options.method).visible_model_only && model_base.has_visibility();
   report.rms_points = visible_only ? "visible" : "all";
   const FitQuality fit = MeasureFit(MeasuredPoints(model_base, visible_only), report.T_world_base, scene_index,

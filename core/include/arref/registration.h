@@ -130,11 +130,14 @@ struct RegistrationOutput {
 };
 
 // What a method gets: model points in the robot base frame, scene points in world, the seed.
+class TargetCloud;  // fast_icp.h
+
 struct MethodInput {
   const PointCloud& model_base;
   const PointCloud& scene_world;
   const Iso3& T_world_seed;
   const RegistrationOptions& options;
+  const TargetCloud* scene_target = nullptr;  // scene_world's k-d tree when the caller built one
 };
 using MethodFn = std::function<Result<RegistrationOutput>(const MethodInput&)>;
 

@@ -19,6 +19,10 @@ const std::vector<MethodInfo>& Methods() {
        [](const MethodInput& in) {
          return RegisterPclIcp(in.model_base, in.scene_world, in.T_world_seed, in.options.icp, true);
        }},
+      {Method::kPclGicp, "pcl-gicp", "PCL Generalized-ICP from the seed (for comparison)",
+       [](const MethodInput& in) {
+         return RegisterPclGicp(in.model_base, in.scene_world, in.T_world_seed, in.options.icp);
+       }},
       {Method::kSuper4pcs, "super4pcs", "the paper's segmentation, Super4PCS (Mellado et al. 2014), then PCL ICP",
        [](const MethodInput& in) {
          return RunGlobalThenIcp(in, "super4pcs", [&](const PointCloud& model, const PointCloud& scene) {

@@ -1,5 +1,6 @@
 // ICP through PCL 1.13, as used by the paper (Puljiz et al. 2019, Sec. III-A).
 #include <pcl/point_types.h>
+#include <pcl/registration/gicp.h>
 #include <pcl/registration/icp.h>
 
 #include "arref/registration.h"
@@ -66,6 +67,18 @@ Result<RegistrationOutput> RegisterPclIcp(const PointCloud& model_base, const Po
     out = Run(icp, model_base, scene_world, T_world_base_initial, params);
   }
   out.stages = {point_to_plane ? "pcl-icp-plane" : "pcl-icp"};
+  return out;
+}
+
+Result<RegistrationOutput> RegisterPclGicp(const PointCloud& model_base, const PointCloud& scene_world,
+                                           const Iso3& T_world_base_initial, const IcpParams& params) {
+  if (model_base.size() < 20 || scene_world.size() < 20)
+    return Status::FailedPrecondition("GICP needs at least 20 model and 20 scene points for its covariances");
+  if (!(params.max_correspondence_m > 0) || params.max_iterations <= 0)
+    return Status::InvalidArgument("GICP needs max correspondence distance > 0 and max iterations > 0");
+  CountingIcp<pcl::GeneralizedIterativeClosestPoint<pcl::PointNormal, pcl::PointNormal>> gicp;
+  RegistrationOutput out = Run(gicp, model_base, scene_world, T_world_base_initial, params);
+  out.stages = {"pcl-gicp"};
   return out;
 }
 

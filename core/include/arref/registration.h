@@ -96,7 +96,7 @@ struct FpfhRansacParams {
 };
 
 // One registry entry per value; the registry (methods.cpp) says which are available.
-enum class Method { kPclIcp, kPclIcpPlane, kSuper4pcs, kPcl4pcs, kPclK4pcs, kFpfhRansac, kArrefIcp };
+enum class Method { kPclIcp, kPclIcpPlane, kPclGicp, kSuper4pcs, kPcl4pcs, kPclK4pcs, kFpfhRansac, kArrefIcp };
 
 // Everything a request may tune. Method-specific parameter structs live here too.
 struct RegistrationOptions {
@@ -156,6 +156,10 @@ const char* MethodName(Method method);
 std::vector<std::string> MethodNames();
 
 Result<RegistrationOutput> RegisterArrefIcp(const MethodInput& input);
+
+// Generalized ICP through PCL (Segal et al. 2009), for comparison.
+Result<RegistrationOutput> RegisterPclGicp(const PointCloud& model_base, const PointCloud& scene_world,
+                                           const Iso3& T_world_base_initial, const IcpParams& params);
 
 // ICP through PCL (point-to-point, or point-to-plane with normals on both clouds).
 Result<RegistrationOutput> RegisterPclIcp(const PointCloud& model_base, const PointCloud& scene_world,

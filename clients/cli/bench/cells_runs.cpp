@@ -160,6 +160,7 @@ Row Summarise(const std::vector<const Run*>& runs, std::map<std::string, std::st
     if (r->total_ms > 0) total.push_back(r->total_ms);
   }
   row.success = runs.empty() ? 0 : static_cast<double>(successes) / static_cast<double>(runs.size());
+  row.rms_mean_mm = row.rms_min_mm = row.rms_max_mm = row.rms_std_mm = std::nan("");  // no successful run: no RMS
   if (!rms.empty()) {
     row.rms_mean_mm = std::accumulate(rms.begin(), rms.end(), 0.0) / static_cast<double>(rms.size());
     row.rms_min_mm = *std::min_element(rms.begin(), rms.end());

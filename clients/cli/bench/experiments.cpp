@@ -108,6 +108,9 @@ Status SweepSize(const RobotModel& robot, const Config& config, const std::strin
     auto by_add = [](const Row& a, const Row& b) {
       return a.success != b.success ? a.success > b.success : a.add_median_mm < b.add_median_mm;
     };
+    // A set whose every run failed has no RMS: it can be neither best nor worst by RMS.
+    std::erase_if(per_set, [](const Row& r) { return r.errors == r.runs; });
+    if (per_set.empty()) continue;
     Row best = *std::min_element(per_set.begin(), per_set.end(), by_rms);
     Row worst = *std::max_element(per_set.begin(), per_set.end(), by_rms);
     Row truth = *std::min_element(per_set.begin(), per_set.end(), by_add);

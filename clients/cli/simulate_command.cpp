@@ -14,6 +14,7 @@ struct SimulateArgs {
   RobotArgs robot;
   std::string mesh_out = "scene.ply";
   std::string truth_out = "truth.json";
+  std::string truth_mesh_out;
   std::string preset = "small";
   std::string frame = "ros";
   std::uint64_t rng_seed = 1;
@@ -59,6 +60,11 @@ int Run(const SimulateArgs& args) {
   TriangleMesh mesh = map.MergedWorld();
   MeshFromRos(mesh, *frame);
   if (auto st = SaveMeshFile(mesh, args.mesh_out); !st.ok()) return Fail(st);
+  if (!args.truth_mesh_out.empty()) {
+    TriangleMesh exact = cell->truth_world;
+    MeshFromRos(exact, *frame);
+    if (auto st = SaveMeshFile(exact, args.truth_mesh_out); !st.ok()) return Fail(st);
+  }
 
   nlohmann::json truth;
   truth["frame"] = args.frame;
@@ -87,6 +93,8 @@ void AddSimulateCommand(CLI::App& app, int* exit_code) {
   AddRobotOptions(*cmd, args->robot);
   cmd->add_option("--mesh-out", args->mesh_out, "Scene mesh to write (.ply, .stl or .obj)")->capture_default_str();
   cmd->add_option("--truth-out", args->truth_out, "Ground truth JSON to write")->capture_default_str();
+  cmd->add_option("--truth-mesh-out", args->truth_mesh_out,
+                  "Also write the exact scene geometry (what the headset's mesh approximates)");
   cmd->add_option("--preset", args->preset, "small (1,000 triangles/m^3) or big (1,240,000)")
       ->check(CLI::IsMember({"small", "big"}))->capture_default_str();
   cmd->add_option("--frame", args->frame, "Convention of the written mesh and poses: ros or unity")

@@ -28,6 +28,8 @@ struct SimulateArgs {
   bool no_robot = false;
   bool seed_any_yaw = false;
   double seed_max_offset = 0;
+  double depth_noise = -1;
+  double pose_jitter = -1;
 };
 
 int Run(const SimulateArgs& args) {
@@ -50,6 +52,11 @@ int Run(const SimulateArgs& args) {
   options.cell.robot_present = !args.no_robot;
   options.seed_noise.any_yaw = args.seed_any_yaw;
   options.seed_noise.max_horizontal_m = args.seed_max_offset;
+  if (args.depth_noise >= 0) options.scan.depth_noise_m = args.depth_noise;
+  if (args.pose_jitter >= 0) {  // one knob for both: metres, and the same number in degrees x 0.075
+    options.scan.pose_jitter_m = args.pose_jitter;
+    options.scan.pose_jitter_deg = args.pose_jitter * 75.0;
+  }
 
   auto cell = sim::SimulateCell(*robot, options, args.rng_seed);
   if (!cell.ok()) return Fail(cell.status().WithContext("simulating the cell"));
@@ -107,6 +114,11 @@ void AddSimulateCommand(CLI::App& app, int* exit_code) {
   cmd->add_option("--clutter", args->clutter, "Number of clutter boxes")->check(CLI::Range(0, 200));
   cmd->add_flag("--second-robot", args->second_robot, "Place a second robot nearby");
   cmd->add_option("--pedestal", args->pedestal, "Pedestal height under the robot, m")->check(CLI::Range(0.0, 3.0));
+  cmd->add_option("--depth-noise", args->depth_noise, "Depth noise sigma along the ray, m (default 0.008)")
+      ->check(CLI::Range(0.0, 0.1));
+  cmd->add_option("--pose-jitter", args->pose_jitter,
+                  "Head pose error sigma, m (default 0.004; rotation jitter scales with it: 0.3 deg at 0.004)")
+      ->check(CLI::Range(0.0, 0.1));
   cmd->add_flag("--no-robot", args->no_robot, "Leave the robot out (seeds still point at its place)");
   cmd->add_flag("--seed-any-yaw", args->seed_any_yaw, "Seeds with any yaw error (uniform over the circle)");
   cmd->add_option("--seed-max-offset", args->seed_max_offset,

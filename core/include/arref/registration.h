@@ -37,7 +37,7 @@ struct ArrefIcpParams {
   bool final_six_dof = false;      // a last 6-DoF step would absorb tilt of the headset world (robots stand upright)
 };
 
-// Turns fit figures into a status (calibrated with `arref bench`, see docs/results.md). The
+// Turns fit figures into a status (calibrated on simulated cells, see docs/engine.md). The
 // paper's RMS is not used: it is 26-50 mm even at the true pose on headset meshes, because part
 // of the robot is never seen (domain notes, lesson 3).
 struct ConfidenceThresholds {

@@ -15,7 +15,7 @@ Result<std::string> FindConfigFile(const std::string& relative) {
   for (const auto& dir : dirs) {
     const std::filesystem::path path = std::filesystem::path(dir) / relative;
     if (std::filesystem::is_regular_file(path)) return path.string();
-    tried += " " + path.string();
+    tried.append(" ").append(path.string());  // not " " + s: GCC 12 warns falsely (-Wrestrict, PR 105329)
   }
   return Status::NotFound("config file '" + relative + "' not found; looked at:" + tried);
 }

@@ -23,6 +23,16 @@ const std::vector<MethodInfo>& Methods() {
        [](const MethodInput& in) {
          return RegisterPclGicp(in.model_base, in.scene_world, in.T_world_seed, in.options.icp);
        }},
+#ifdef ARREF_WITH_OPEN3D
+      {Method::kOpen3dIcp, "open3d-icp", "Open3D point-to-point ICP from the seed (for comparison)",
+       [](const MethodInput& in) {
+         return RegisterOpen3dIcp(in.model_base, in.scene_world, in.T_world_seed, in.options.icp, false);
+       }},
+      {Method::kOpen3dIcpPlane, "open3d-icp-plane", "Open3D point-to-plane ICP from the seed (for comparison)",
+       [](const MethodInput& in) {
+         return RegisterOpen3dIcp(in.model_base, in.scene_world, in.T_world_seed, in.options.icp, true);
+       }},
+#endif
       {Method::kSuper4pcs, "super4pcs", "the paper's segmentation, Super4PCS (Mellado et al. 2014), then PCL ICP",
        [](const MethodInput& in) {
          return RunGlobalThenIcp(in, "super4pcs", [&](const PointCloud& model, const PointCloud& scene) {

@@ -96,7 +96,10 @@ struct FpfhRansacParams {
 };
 
 // One registry entry per value; the registry (methods.cpp) says which are available.
-enum class Method { kPclIcp, kPclIcpPlane, kPclGicp, kSuper4pcs, kPcl4pcs, kPclK4pcs, kFpfhRansac, kArrefIcp };
+enum class Method {
+  kPclIcp, kPclIcpPlane, kPclGicp, kSuper4pcs, kPcl4pcs, kPclK4pcs, kFpfhRansac, kArrefIcp,
+  kOpen3dIcp, kOpen3dIcpPlane,  // only when built with Open3D
+};
 
 // Everything a request may tune. Method-specific parameter structs live here too.
 struct RegistrationOptions {
@@ -160,6 +163,11 @@ Result<RegistrationOutput> RegisterArrefIcp(const MethodInput& input);
 // Generalized ICP through PCL (Segal et al. 2009), for comparison.
 Result<RegistrationOutput> RegisterPclGicp(const PointCloud& model_base, const PointCloud& scene_world,
                                            const Iso3& T_world_base_initial, const IcpParams& params);
+
+// ICP through Open3D, when arref was built with it (ARREF_WITH_OPEN3D).
+Result<RegistrationOutput> RegisterOpen3dIcp(const PointCloud& model_base, const PointCloud& scene_world,
+                                             const Iso3& T_world_base_initial, const IcpParams& params,
+                                             bool point_to_plane);
 
 // ICP through PCL (point-to-point, or point-to-plane with normals on both clouds).
 Result<RegistrationOutput> RegisterPclIcp(const PointCloud& model_base, const PointCloud& scene_world,

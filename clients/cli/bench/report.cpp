@@ -157,11 +157,16 @@ Status WriteReport(const Config& config, const Tables& tables, const std::string
   ARREF_RETURN_IF_ERROR(CsvTable(dir + "/scenes.csv", tables.scenes, {"method", "scene"}));
   std::vector<std::string> plotted = {"user guess"};
   plotted.insert(plotted.end(), config.perturb_methods.begin(), config.perturb_methods.end());
-  const std::string rotation_plot = Plot(dir, "rotation", "seed rotated about z, deg", tables, plotted, "rotation",
-                                         [](const Run& r) { return r.seed_yaw_deg; });
+  // The figures show the seed perturbations (Table III); without that experiment there is nothing to draw.
+  const bool perturbed = !tables.table3.empty();
+  const std::string rotation_plot =
+      perturbed ? Plot(dir, "rotation", "seed rotated about z, deg", tables, plotted, "rotation",
+                       [](const Run& r) { return r.seed_yaw_deg; })
+                : "(no figure: the perturbation experiment did not run)";
   const std::string translation_plot =
-      Plot(dir, "translation", "seed moved along x, y or z, m", tables, plotted, "translation",
-           [](const Run& r) { return std::round(r.seed_offset_m.sum() * 10) / 10; });
+      perturbed ? Plot(dir, "translation", "seed moved along x, y or z, m", tables, plotted, "translation",
+                       [](const Run& r) { return std::round(r.seed_offset_m.sum() * 10) / 10; })
+                : "(no figure: the perturbation experiment did not run)";
 
   std::ofstream md(dir + "/results.md");
   if (!md) return Status::IoError("cannot write " + dir + "/results.md");

@@ -9,6 +9,7 @@
 
 #include "arref/builtin.h"
 #include "arref/fast_icp.h"
+#include "arref/model_visibility.h"
 #include "arref/pipeline.h"
 #include "arref/sim/cell_simulator.h"
 #include "arref/spatial_mesh.h"
@@ -31,10 +32,7 @@ const Fixture& Cell() {
     Fixture out;
     out.T_world_base = cell->T_world_base;
     auto model = SampleRobot(*robot, cell->joints, 10000, 1);
-    std::vector<std::uint32_t> visible;
-    for (std::size_t i = 0; i < model->size(); ++i)
-      if (model->visibility[i] > 0) visible.push_back(static_cast<std::uint32_t>(i));
-    out.model = model->Subset(visible);
+    out.model = VisiblePoints(*model);
     out.scene = SampleSurface(CropToSphere(map.MergedWorld(), cell->T_world_base.translation(), 2.0), 16000, 1);
     return out;
   }();

@@ -16,6 +16,7 @@
 #include <tbb/parallel_for.h>
 
 #include "arref/fast_icp.h"
+#include "arref/model_visibility.h"
 #include "arref/registration.h"
 
 namespace arref {
@@ -33,14 +34,6 @@ PointCloud Thin(const PointCloud& cloud, std::size_t limit) {
   const std::size_t stride = std::max<std::size_t>(1, (cloud.size() + limit - 1) / std::max<std::size_t>(1, limit));
   for (std::size_t i = 0; i < cloud.size(); i += stride) keep.push_back(static_cast<std::uint32_t>(i));
   return cloud.Subset(keep);
-}
-
-PointCloud VisiblePoints(const PointCloud& model) {
-  if (!model.has_visibility()) return model;
-  std::vector<std::uint32_t> keep;
-  for (std::size_t i = 0; i < model.size(); ++i)
-    if (model.visibility[i] > 0) keep.push_back(static_cast<std::uint32_t>(i));
-  return keep.size() >= 50 ? model.Subset(keep) : model;
 }
 
 double Yaw(const Iso3& T) { return std::atan2(T.linear()(1, 0), T.linear()(0, 0)); }

@@ -32,6 +32,14 @@ TriangleMesh WithFloor(const TriangleMesh& robot, const Aabb& box) {
 
 }  // namespace
 
+PointCloud VisiblePoints(const PointCloud& model) {
+  if (!model.has_visibility()) return model;
+  std::vector<std::uint32_t> keep;
+  for (std::size_t i = 0; i < model.size(); ++i)
+    if (model.visibility[i] > 0) keep.push_back(static_cast<std::uint32_t>(i));
+  return keep.size() >= 50 ? model.Subset(keep) : model;
+}
+
 Result<std::vector<float>> ModelVisibility(const TriangleMesh& robot_base, const PointCloud& samples,
                                            const VisibilityOptions& options) {
   if (!samples.has_normals()) return Status::InvalidArgument("model visibility needs sample normals");

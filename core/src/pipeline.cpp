@@ -46,15 +46,6 @@ Status CheckOptions(const RegistrationOptions& o) {
   return Status::Ok();
 }
 
-// The points a result is measured on: the ones the method fits.
-std::vector<Vec3f> MeasuredPoints(const PointCloud& model, bool visible_only) {
-  if (!visible_only || !model.has_visibility()) return model.points;
-  std::vector<Vec3f> out;
-  for (std::size_t i = 0; i < model.size(); ++i)
-    if (model.visibility[i] > 0) out.push_back(model.points[i]);
-  return out.size() >= 50 ? out : model.points;
-}
-
 void AssignStatus(const ConfidenceThresholds& t, RegistrationReport* r) {
   std::string why;
   if (r->inlier_fraction < t.ok_min_inlier_fraction)
@@ -155,12 +146,14 @@ Result<RegistrationReport> RegisterScene(const PointCloud& model_base, const Tri
   const PointIndex& scene_index = target.index();
   const bool visible_only = MethodInfoOf(options.method).visible_model_only && model_base.has_visibility();
   report.rms_points = visible_only ? "visible" : "all";
-  const FitQuality fit = MeasureFit(MeasuredPoints(model_base, visible_only), report.T_world_base, scene_index,
+  const std::vector<Vec3f> visible = VisiblePoints(model_base).points;
+  // RMS over the points the method fits (the paper's metric for the paper's methods).
+  const FitQuality fit = MeasureFit(visible_only ? visible : model_base.points, report.T_world_base, scene_index,
                                     options.inlier_threshold_m);
   report.rms_m = fit.rms_m;
   // Confidence rests on the visible points whatever the method, so that statuses compare.
   report.inlier_fraction = visible_only ? fit.inlier_fraction
-                                        : MeasureFit(MeasuredPoints(model_base, true), report.T_world_base, scene_index,
+                                        : MeasureFit(visible, report.T_world_base, scene_index,
                                                      options.inlier_threshold_m).inlier_fraction;
   AssignStatus(options.confidence, &report);
   clock.Stop();

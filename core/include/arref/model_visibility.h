@@ -26,6 +26,10 @@ struct VisibilityOptions {
 
 // Per sample point: the fraction of eye positions that see it (unoccluded, facing the eye).
 // Needs normals on the samples (outward, as from SampleSurface).
+// The points with visibility > 0, with their attributes. The whole cloud when it carries no
+// visibility, or when fewer than 50 points would remain (too few to fit or to measure).
+PointCloud VisiblePoints(const PointCloud& model);
+
 Result<std::vector<float>> ModelVisibility(const TriangleMesh& robot_base, const PointCloud& samples,
                                            const VisibilityOptions& options = {});
 

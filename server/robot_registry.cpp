@@ -77,9 +77,9 @@ Result<RobotRegistry::ModelCloud> RobotRegistry::Model(const ServedRobot& robot,
     }
   }
   if (entry.valid()) return entry.get();  // may wait for the thread that samples it
-  auto cloud = SampleRobot(robot.model, joints, samples, seed);
-  Result<ModelCloud> result = cloud.ok() ? Result<ModelCloud>(std::make_shared<const PointCloud>(std::move(*cloud)))
-                                         : Result<ModelCloud>(cloud.status());
+  auto side = RobotSide::Create(robot.model, joints, samples, seed);
+  Result<ModelCloud> result = side.ok() ? Result<ModelCloud>(std::move(*side))
+                                        : Result<ModelCloud>(side.status());
   promise.set_value(result);
   if (!result.ok()) {  // do not cache failures: the next request retries
     std::lock_guard lock(mu_);

@@ -1,5 +1,6 @@
 // The robots a server registers, loaded once at start-up, and a thread-safe cache of their
-// sampled model clouds (one per robot + joint state + sample count + seed).
+// model sides (pipeline.h: samples and expected headset surfaces; one per robot + joint state
+// + sample count + seed).
 #pragma once
 
 #include <cstdint>
@@ -12,6 +13,7 @@
 #include <vector>
 
 #include "arref/geometry.h"
+#include "arref/pipeline.h"
 #include "arref/robot_model.h"
 #include "arref/status.h"
 #include "server_config.h"
@@ -36,7 +38,7 @@ class RobotRegistry {
   // The robot's defaults overridden by the given values, completed and validated.
   Result<JointValues> ResolveJoints(const ServedRobot& robot, const JointValues& given) const;
 
-  using ModelCloud = std::shared_ptr<const PointCloud>;
+  using ModelCloud = std::shared_ptr<const RobotSide>;
   // Sampled once per key; concurrent callers with the same key wait for the first.
   Result<ModelCloud> Model(const ServedRobot& robot, const JointValues& joints, std::size_t samples,
                            std::uint64_t seed);

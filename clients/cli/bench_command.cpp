@@ -22,6 +22,12 @@ struct BenchArgs {
   bool no_big = false;
   int jobs = 1;
   std::uint64_t rng_seed = 1;
+  std::vector<std::string> scene_kinds;
+  std::string scene_size = "small";
+  int scene_cells = 2;
+  int scene_seeds = 3;
+  bool seed_any_yaw = false;
+  double seed_max_offset = 0.0;
   std::string only;  // comma-separated subset of sweep, perturb, scenes
   std::string command_line;
 };
@@ -48,6 +54,10 @@ int Run(const BenchArgs& args) {
   config.methods = *methods, config.perturb_methods = *perturb, config.scene_methods = *scenes;
   config.out_dir = args.out, config.quick = args.quick, config.big = !args.no_big;
   config.jobs = args.jobs, config.rng_seed = args.rng_seed;
+  config.scene_size = args.scene_size, config.scene_cells = args.scene_cells, config.scene_seeds = args.scene_seeds;
+  if (!args.scene_kinds.empty()) config.scene_kinds = args.scene_kinds;
+  config.seed_noise.any_yaw = args.seed_any_yaw;
+  config.seed_noise.max_horizontal_m = args.seed_max_offset;
   std::error_code ec;
   std::filesystem::create_directories(config.out_dir, ec);
   if (ec) return Fail(Status::IoError("--out " + config.out_dir + ": " + ec.message()));
@@ -87,6 +97,17 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
   cmd->add_option("--jobs", args->jobs, "Registrations run in parallel (1: clean per-run times and memory)")
       ->check(CLI::Range(1, 64))->capture_default_str();
   cmd->add_option("--rng-seed", args->rng_seed, "Seed of the simulated cells")->capture_default_str();
+  cmd->add_option("--scene-kinds", args->scene_kinds,
+                  "Scenes experiment: kinds of cell (default, near-table, clutter, second-robot, empty)")
+      ->delimiter(',')->check(CLI::IsMember({"default", "near-table", "clutter", "second-robot", "empty"}));
+  cmd->add_option("--scene-size", args->scene_size, "Scenes experiment: small or big configuration")
+      ->check(CLI::IsMember({"small", "big"}))->capture_default_str();
+  cmd->add_option("--scene-cells", args->scene_cells, "Scenes experiment: cells per kind")->check(CLI::Range(1, 1000))->capture_default_str();
+  cmd->add_option("--scene-seeds", args->scene_seeds, "Scenes experiment: seeds per cell")->check(CLI::Range(1, 1000))->capture_default_str();
+  cmd->add_flag("--seed-any-yaw", args->seed_any_yaw, "Scenes experiment: seeds with any yaw error");
+  cmd->add_option("--seed-max-offset", args->seed_max_offset,
+                  "Scenes experiment: seeds' horizontal error uniform in a disc of this radius, m (0: user-like)")
+      ->check(CLI::Range(0.0, 3.0));
   cmd->add_option("--only", args->only, "Run only these experiments: sweep, perturb, scenes (comma-separated)");
   cmd->callback([args, exit_code, cmd] {
     args->command_line = "arref bench";

@@ -42,17 +42,17 @@ int Run(const DemoArgs& args) {
     if (auto st = map.Upsert(s); !st.ok()) return Fail(st);
   const TriangleMesh scene = map.MergedWorld();
   RegistrationOptions options;
-  auto model = SampleRobot(*robot, cell->joints, options.model_samples, options.sample_seed);
+  auto model = RobotSide::Create(*robot, cell->joints, options.model_samples, options.sample_seed);
   if (!model.ok()) return Fail(model.status());
   std::printf("cell: %zu surfaces, %zu triangles, voxel %.3f m\n", map.size(), scene.triangles.size(), cell->voxel_m);
   PrintPose("true base", cell->T_world_base);
 
   std::vector<double> adds;
   for (std::size_t i = 0; i < cell->seeds.size(); ++i) {
-    auto report = RegisterScene(*model, scene, cell->seeds[i], options);
+    auto report = RegisterScene(**model, scene, cell->seeds[i], options);
     if (!report.ok()) return Fail(report.status().WithContext("seed " + std::to_string(i)));
-    const PoseError seed_error = ComparePoses(cell->seeds[i], cell->T_world_base, model->points);
-    const PoseError e = ComparePoses(report->T_world_base, cell->T_world_base, model->points);
+    const PoseError seed_error = ComparePoses(cell->seeds[i], cell->T_world_base, (*model)->samples().points);
+    const PoseError e = ComparePoses(report->T_world_base, cell->T_world_base, (*model)->samples().points);
     std::printf("\nseed %zu (off by %.0f mm, %.1f deg):\n", i, seed_error.translation_m * 1e3, seed_error.rotation_deg);
     PrintPose("  seed", cell->seeds[i]);
     PrintPose("  registered", report->T_world_base);

@@ -143,17 +143,17 @@ int Run(const RegisterArgs& args) {
   if (!inputs.ok()) return Fail(inputs.status());
   auto robot = LoadRobot(args.robot);
   if (!robot.ok()) return Fail(robot.status());
-  auto model = SampleRobot(*robot, inputs->joints, options.model_samples, options.sample_seed);
+  auto model = RobotSide::Create(*robot, inputs->joints, options.model_samples, options.sample_seed);
   if (!model.ok()) return Fail(model.status());
   auto scene = LoadMeshFile(args.scene);
   if (!scene.ok()) return Fail(scene.status().WithContext("--scene"));
   MeshToRos(*scene, *frame);
 
-  auto report = RegisterScene(*model, *scene, inputs->T_world_seed, options, TerminalProgress());
+  auto report = RegisterScene(**model, *scene, inputs->T_world_seed, options, TerminalProgress());
   if (!report.ok()) return Fail(report.status());
   nlohmann::json j = ReportJson(*report, *frame);
   if (inputs->truth) {
-    const PoseError e = ComparePoses(report->T_world_base, inputs->T_world_base_true, model->points);
+    const PoseError e = ComparePoses(report->T_world_base, inputs->T_world_base_true, (*model)->samples().points);
     j["translation_error_m"] = e.translation_m;
     j["rotation_error_deg"] = e.rotation_deg;
     j["add_m"] = e.add_m;
@@ -194,6 +194,11 @@ void AddRegisterCommand(CLI::App& app, int* exit_code) {
   cmd->add_option("--transformation-epsilon", o.icp.transformation_epsilon, "ICP transformation epsilon");
   cmd->add_option("--fitness-epsilon", o.icp.euclidean_fitness_epsilon, "ICP Euclidean fitness epsilon");
   cmd->add_option("--inlier-threshold", o.inlier_threshold_m, "Distance counted as inlier, m")->capture_default_str();
+  cmd->add_flag("--expected-surface,!--exact-surface", o.arref_icp.expected_surface,
+                "arref-icp: fit the exact robot surface (visible parts) instead of the robot as the headset would mesh it")
+      ->default_str("expected");
+  cmd->add_option("--expected-voxel", o.arref_icp.expected_voxel_m,
+                  "arref-icp: voxel of the headset mesh, m (default: the cropped mesh's median edge length)");
   cmd->add_option("--sample-seed", o.sample_seed, "Seed of the surface sampling")->capture_default_str();
   cmd->add_option("--mls", args->mls_radius, "Moving Least Squares search radius, m (0: off)");
   cmd->add_option("--mls-order", args->mls_order, "MLS polynomial order");

@@ -14,7 +14,7 @@
 
 #include "arref/raycaster.h"
 #include "scene_builder.h"
-#include "tsdf.h"
+#include "arref/tsdf.h"
 
 namespace arref::sim {
 namespace {
@@ -129,19 +129,6 @@ void AddRangeNoise(RangeImage& range, const ScanOptions& scan, std::uint64_t see
     const double r = range[i] + scan.depth_noise_m * HashGaussian(seed, static_cast<std::uint64_t>(view), i);
     range[i] = (r > 0 && r <= scan.max_range_m) ? static_cast<float>(r) : 0.0f;
   }
-}
-
-// T_cell_camera for an optical camera (z forward, x right, y down) at eye looking at target.
-Iso3 LookAt(const Vec3& eye, const Vec3& target) {
-  const Vec3 forward = (target - eye).normalized();
-  Vec3 right = forward.cross(Vec3::UnitZ());
-  right = right.norm() > 1e-6 ? right.normalized() : Vec3::UnitY();  // looking straight down
-  Iso3 T = Iso3::Identity();
-  T.linear().col(0) = right;
-  T.linear().col(1) = forward.cross(right);
-  T.linear().col(2) = forward;
-  T.translation() = eye;
-  return T;
 }
 
 struct View {

@@ -100,15 +100,37 @@ Candidate Refine(const PointCloud& fine, const TargetCloud& target, const Candid
   return {st.T_target_source, ScoreAlignment(fine, target, st.T_target_source, 0.02, 0.5).inlier_fraction, iterations};
 }
 
+// Which surface explains the scene: a fused headset mesh is matched by the expected surface,
+// exact geometry (a CAD scene, a fine scan) by the exact one. The winner is refined with the exact
+// visible surface too, and whichever lies closer to the scene's tangent planes is kept.
+Candidate ExactIfCloser(const MethodInput& in, const PointCloud& expected_fine, const TargetCloud& target,
+                        const Candidate& best, std::vector<std::string>* stages) {
+  const ArrefIcpParams& p = in.options.arref_icp;
+  const PointCloud exact_fine = Thin(VisiblePoints(in.model_base), p.fine_points);
+  Candidate exact = Refine(exact_fine, target, {best.T_world_base, best.score, 0}, p);
+  const double d_expected = MedianPlaneDistance(expected_fine, target, best.T_world_base, 0.03, 0.5);
+  const double d_exact = MedianPlaneDistance(exact_fine, target, exact.T_world_base, 0.03, 0.5);
+  spdlog::debug("arref-icp: median plane distance {:.1f} mm expected surface, {:.1f} mm exact", d_expected * 1e3,
+                d_exact * 1e3);
+  if (d_exact < d_expected) {
+    stages->push_back("fitted-exact-surface");
+    return {exact.T_world_base, best.score, best.iterations + exact.iterations};
+  }
+  stages->push_back("fitted-expected-surface");
+  return best;
+}
+
 }  // namespace
 
 Result<RegistrationOutput> RegisterArrefIcp(const MethodInput& in) {
   const ArrefIcpParams& p = in.options.arref_icp;
-  if (!in.model_base.has_normals() || !in.scene_world.has_normals())
+  if (!in.model_base.has_normals() || !in.scene_world.has_normals() ||
+      (in.model_expected && !in.model_expected->has_normals()))
     return Status::FailedPrecondition("arref-icp needs normals on model and scene points");
   if (p.yaw_hypotheses < 1 || p.height_offsets_m.empty() || p.refine_top < 1 || p.position_steps < 0)
     return Status::InvalidArgument("arref-icp: yaw hypotheses, heights and refine_top must be >= 1");
-  const PointCloud visible = VisiblePoints(in.model_base);
+  // The robot as the headset meshes it when known; else its exact surface, visible parts only.
+  const PointCloud visible = in.model_expected ? *in.model_expected : VisiblePoints(in.model_base);
   const PointCloud coarse = Thin(visible, p.coarse_points);
   const PointCloud fine = Thin(visible, p.fine_points);
   std::optional<TargetCloud> own_target;
@@ -136,6 +158,7 @@ Result<RegistrationOutput> RegisterArrefIcp(const MethodInput& in) {
   spdlog::debug("arref-icp: {} hypotheses, fine refinement {:.1f} ms", candidates.size(),
                 std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_coarse).count());
   out.stages.push_back("arref-icp");
+  if (in.model_expected) refined.front() = ExactIfCloser(in, fine, target, refined.front(), &out.stages);
   out.T_world_base = refined.front().T_world_base;
   out.score = refined.front().score;
   out.margin = refined.size() > 1 ? refined[0].score - refined[1].score : refined[0].score;

@@ -160,4 +160,25 @@ AlignmentScore ScoreAlignment(const PointCloud& source, const TargetCloud& targe
   return score;
 }
 
+double MedianPlaneDistance(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
+                           double max_distance_m, double min_normal_cos) {
+  const Eigen::Isometry3f T = T_target_source.cast<float>();
+  const float max_sq = static_cast<float>(max_distance_m * max_distance_m);
+  std::vector<float> distances;
+  distances.reserve(source.size());
+  for (std::size_t i = 0; i < source.size(); ++i) {
+    std::uint32_t j;
+    float sq;
+    const Vec3f p = T * source.points[i];
+    if (!target.index().NearestWithin(p, max_sq, &j, &sq)) continue;
+    const Vec3f& n = target.normals()[j];
+    if ((T.linear() * source.normals[i]).dot(n) < min_normal_cos) continue;
+    distances.push_back(std::abs(n.dot(p - target.index().points()[j])));
+  }
+  if (distances.empty()) return std::numeric_limits<double>::infinity();
+  auto mid = distances.begin() + static_cast<std::ptrdiff_t>(distances.size() / 2);
+  std::nth_element(distances.begin(), mid, distances.end());
+  return *mid;
+}
+
 }  // namespace arref

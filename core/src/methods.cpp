@@ -9,8 +9,11 @@ namespace arref {
 const std::vector<MethodInfo>& Methods() {
   static const std::vector<MethodInfo> kMethods = {
       {Method::kArrefIcp, "arref-icp",
-       "arref's default: 4-DoF yaw/height/position search around the seed, point-to-plane ICP on visible model points",
-       RegisterArrefIcp, true},
+       "arref's default: 4-DoF yaw/height/position search around the seed, point-to-plane ICP of the robot as the "
+       "headset would mesh it",
+       RegisterArrefIcp, true, true},
+      {Method::kArrefIcpExact, "arref-icp-exact",
+       "arref-icp fitting the robot's exact surface (its visible parts), for comparison", RegisterArrefIcp, true},
       {Method::kPclIcp, "pcl-icp", "PCL point-to-point ICP from the seed (the paper's method)",
        [](const MethodInput& in) {
          return RegisterPclIcp(in.model_base, in.scene_world, in.T_world_seed, in.options.icp, false);

@@ -6,21 +6,10 @@
 #include "arref/raycaster.h"
 
 namespace arref {
-namespace {
 
-// Camera at `eye` looking at `target`, in the optical convention (z forward, x right, y down).
-Iso3 LookAt(const Vec3& eye, const Vec3& target) {
-  const Vec3 z = (target - eye).normalized();
-  const Vec3 x = z.cross(Vec3::UnitZ()).normalized();
-  const Vec3 y = z.cross(x);
-  Iso3 T_base_camera = Iso3::Identity();
-  T_base_camera.linear() << x, y, z;
-  T_base_camera.translation() = eye;
-  return T_base_camera;
-}
-
-TriangleMesh WithFloor(const TriangleMesh& robot, const Aabb& box) {
-  TriangleMesh scene = robot;
+TriangleMesh WithFloor(const TriangleMesh& robot_base) {
+  const Aabb box = BoundsOf(robot_base.vertices);
+  TriangleMesh scene = robot_base;
   const float r = 10.0f;
   const auto n = static_cast<std::uint32_t>(scene.vertices.size());
   const float z = std::min(0.0f, box.min.z());
@@ -29,8 +18,6 @@ TriangleMesh WithFloor(const TriangleMesh& robot, const Aabb& box) {
   scene.triangles.push_back({n, n + 2, n + 3});
   return scene;
 }
-
-}  // namespace
 
 PointCloud VisiblePoints(const PointCloud& model) {
   if (!model.has_visibility()) return model;
@@ -46,7 +33,7 @@ Result<std::vector<float>> ModelVisibility(const TriangleMesh& robot_base, const
   if (options.azimuths <= 0 || options.distances_m.empty() || options.eye_heights_m.empty())
     return Status::InvalidArgument("model visibility needs at least one eye position");
   const Aabb box = BoundsOf(robot_base.vertices);
-  auto caster = RayCaster::Create(options.floor ? WithFloor(robot_base, box) : robot_base);
+  auto caster = RayCaster::Create(options.floor ? WithFloor(robot_base) : robot_base);
   if (!caster.ok()) return caster.status().WithContext("model visibility");
   const PinholeCamera camera = PinholeCamera::FromFov(options.image_width, options.image_height,
                                                       options.fov_horizontal_deg);

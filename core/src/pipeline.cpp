@@ -6,6 +6,7 @@
 
 #include "arref/fast_icp.h"
 #include "arref/metrics.h"
+#include "arref/model_reconstruction.h"
 #include "arref/model_visibility.h"
 #include "arref/nearest_neighbor.h"
 #include "arref/spatial_mesh.h"
@@ -90,9 +91,24 @@ const char* ResultStatusName(ResultStatus status) {
   return "FAILED";
 }
 
-Result<RegistrationReport> RegisterScene(const PointCloud& model_base, const TriangleMesh& scene_world,
-                                         const Iso3& T_world_seed, const RegistrationOptions& options,
-                                         const ProgressFn& progress) {
+namespace {
+
+constexpr double kMinExpectedVoxel = 0.005, kMaxExpectedVoxel = 0.15;
+
+// The robot as the headset meshes it, at the voxel of this scene; null when the mesh's voxel is
+// out of the fusion's range (then the exact surface is fitted).
+Result<std::shared_ptr<const PointCloud>> ExpectedSurface(const RobotSide& robot, double voxel) {
+  if (!(voxel >= kMinExpectedVoxel && voxel <= kMaxExpectedVoxel)) {
+    spdlog::warn("scene mesh voxel {:.4f} m is outside [{}, {}] m: fitting the exact robot surface", voxel,
+                 kMinExpectedVoxel, kMaxExpectedVoxel);
+    return std::shared_ptr<const PointCloud>();
+  }
+  return robot.Expected(voxel);
+}
+
+Result<RegistrationReport> Register(const PointCloud& model_base, const RobotSide* robot,
+                                    const TriangleMesh& scene_world, const Iso3& T_world_seed,
+                                    const RegistrationOptions& options, const ProgressFn& progress) {
   ARREF_RETURN_IF_ERROR(CheckOptions(options));
   if (!T_world_seed.matrix().allFinite()) return Status::InvalidArgument("seed pose is not finite");
   if (model_base.size() < 3) return Status::FailedPrecondition("robot model has fewer than 3 points");
@@ -109,6 +125,16 @@ Result<RegistrationReport> RegisterScene(const PointCloud& model_base, const Tri
     return Status::FailedPrecondition(fmt::format(
         "no scene triangles within {} m of the seed at ({:.3f}, {:.3f}, {:.3f}); is the seed in the mesh's frame?",
         options.crop_radius_m, c.x(), c.y(), c.z()));
+  }
+
+  std::shared_ptr<const PointCloud> expected;
+  if (robot && MethodInfoOf(options.method).uses_expected_surface && options.arref_icp.expected_surface) {
+    clock.Start("expected-surface", 0.05);  // a cache hit after the first request per voxel size
+    const double voxel = options.arref_icp.expected_voxel_m > 0 ? options.arref_icp.expected_voxel_m : MedianEdgeLength(cropped);
+    auto e = ExpectedSurface(*robot, voxel);
+    if (!e.ok()) return e.status();
+    expected = *e;
+    if (expected) report.stages_run.push_back("expected-surface");
   }
 
   clock.Start("sample", 0.1);
@@ -132,7 +158,7 @@ Result<RegistrationReport> RegisterScene(const PointCloud& model_base, const Tri
   // One k-d tree of the scene serves the method (when it takes one) and the evaluation.
   const TargetCloud target(scene);
   clock.Start("register", 0.3);
-  auto out = MethodInfoOf(options.method).run(MethodInput{model_base, scene, T_world_seed, options, &target});
+  auto out = MethodInfoOf(options.method).run(MethodInput{model_base, scene, T_world_seed, options, &target, expected.get()});
   if (!out.ok()) return out.status().WithContext(report.method);
   report.T_world_base = out->T_world_base;
   report.iterations = out->iterations;
@@ -159,6 +185,20 @@ Result<RegistrationReport> RegisterScene(const PointCloud& model_base, const Tri
   clock.Stop();
   if (progress) progress("done", 1.0);
   return report;
+}
+
+}  // namespace
+
+Result<RegistrationReport> RegisterScene(const RobotSide& robot, const TriangleMesh& scene_world,
+                                         const Iso3& T_world_seed, const RegistrationOptions& options,
+                                         const ProgressFn& progress) {
+  return Register(robot.samples(), &robot, scene_world, T_world_seed, options, progress);
+}
+
+Result<RegistrationReport> RegisterScene(const PointCloud& model_base, const TriangleMesh& scene_world,
+                                         const Iso3& T_world_seed, const RegistrationOptions& options,
+                                         const ProgressFn& progress) {
+  return Register(model_base, nullptr, scene_world, T_world_seed, options, progress);
 }
 
 }  // namespace arref

@@ -11,6 +11,18 @@
 
 namespace arref {
 
+Iso3 LookAt(const Vec3& eye, const Vec3& target) {
+  const Vec3 forward = (target - eye).normalized();
+  Vec3 right = forward.cross(Vec3::UnitZ());
+  right = right.norm() > 1e-6 ? right.normalized() : Vec3::UnitY();  // looking straight down
+  Iso3 T = Iso3::Identity();
+  T.linear().col(0) = right;
+  T.linear().col(1) = forward.cross(right);
+  T.linear().col(2) = forward;
+  T.translation() = eye;
+  return T;
+}
+
 PinholeCamera PinholeCamera::FromFov(int width, int height, double fov_horizontal_deg) {
   PinholeCamera c;
   c.width = width;

@@ -2,6 +2,8 @@
 // ground truth. Cells and runs, statistics, the three experiments and the report.
 #pragma once
 
+#include <memory>
+
 #include <map>
 #include <string>
 #include <vector>
@@ -12,6 +14,7 @@
 namespace arref::bench {
 
 constexpr double kSuccessAddM = 0.010;  // success = ADD <= 10 mm
+constexpr double kWrongAddM = 0.020;    // a result this far off is wrong (issue 5: never OK)
 
 struct Config {
   std::vector<std::string> methods;          // swept (Tables I, II)
@@ -22,16 +25,22 @@ struct Config {
   bool big = true;  // also the paper's "big" configuration
   int jobs = 1;
   std::uint64_t rng_seed = 1;
+  // The scenes experiment (the engine comparison): which cells, how many, and how the seeds err.
+  std::vector<std::string> scene_kinds = {"default", "near-table", "clutter", "second-robot"};
+  std::string scene_size = "small";
+  int scene_cells = 2;  // per kind
+  int scene_seeds = 3;  // per cell
+  sim::SeedNoise seed_noise;
 };
 
 // A simulated cell with everything a run needs.
 struct Cell {
-  std::string kind;  // default, near-table, clutter, second-robot
+  std::string kind;  // default, near-table, clutter, second-robot, empty (no robot)
   std::string size;  // small, big
   int index = 0;
   sim::SimulatedCell sim;
   TriangleMesh scene_world;
-  PointCloud model_base;
+  std::shared_ptr<const RobotSide> robot;  // samples and the expected headset surface
 };
 
 // One registration against ground truth.
@@ -42,6 +51,7 @@ struct Run {
   Vec3 seed_offset_m = Vec3::Zero();
   std::string perturbation;       // "", "none", "rotation", "translation"
   bool ok = false;
+  std::string status;  // the result's OK / LOW_CONFIDENCE / FAILED
   std::string error;
   double rms_m = 0, add_m = 0, translation_m = 0, rotation_deg = 0;
   std::map<std::string, double> stage_ms;
@@ -59,7 +69,8 @@ struct Job {
 };
 
 Result<std::vector<Cell>> MakeCells(const RobotModel& robot, const std::vector<std::string>& kinds, const std::string& size,
-                                    int cells_per_kind, int seeds_per_cell, std::uint64_t rng_seed);
+                                    int cells_per_kind, int seeds_per_cell, std::uint64_t rng_seed,
+                                    const sim::SeedNoise& seed_noise = {});
 // Runs every job (in parallel when jobs > 1) and returns their runs in order.
 std::vector<Run> Execute(std::vector<Job>& jobs, int parallel_jobs);
 
@@ -68,6 +79,9 @@ struct Row {
   std::map<std::string, std::string> labels;  // e.g. method, size, params
   std::size_t runs = 0, errors = 0, segmentation_flags = 0;
   double success = 0;  // share of all runs with ADD <= 10 mm
+  double within_20mm = 0;
+  double status_ok = 0;           // share of all runs whose result said OK
+  std::size_t wrong_ok = 0;       // runs that said OK with ADD > 20 mm (or with no robot there)
   double rms_mean_mm = 0, rms_min_mm = 0, rms_max_mm = 0, rms_std_mm = 0;
   double add_median_mm = 0, add_p95_mm = 0, translation_median_mm = 0, rotation_median_deg = 0;
   double register_median_ms = 0, total_median_ms = 0, mls_median_ms = 0;

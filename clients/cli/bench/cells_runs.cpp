@@ -24,6 +24,7 @@ Result<sim::SimOptions> OptionsFor(const std::string& kind, const std::string& s
   if (kind == "near-table") o.cell.table_gap_m = 0.05;  // the paper's failure case for Super4PCS
   else if (kind == "clutter") o.cell.clutter_boxes = 12;
   else if (kind == "second-robot") o.cell.second_robot = true;
+  else if (kind == "empty") o.cell.robot_present = false;  // seeds point where it would stand
   else if (kind != "default") return Status::InvalidArgument("unknown bench scene kind '" + kind + "'");
   return o;
 }
@@ -59,18 +60,19 @@ void ExecuteOne(Job& job) {
     // The user's guess as the answer: RMS over the same crop and sample as a registration.
     const TriangleMesh cropped = CropToSphere(cell.scene_world, job.T_world_seed.translation(), job.options.crop_radius_m);
     const PointIndex index(SampleSurface(cropped, job.options.scene_samples, job.options.sample_seed).points);
-    run.rms_m = MeasureFit(cell.model_base.points, job.T_world_seed, index, job.options.inlier_threshold_m).rms_m;
-    const PoseError e = ComparePoses(job.T_world_seed, truth, cell.model_base.points);
+    run.rms_m = MeasureFit(cell.robot->samples().points, job.T_world_seed, index, job.options.inlier_threshold_m).rms_m;
+    const PoseError e = ComparePoses(job.T_world_seed, truth, cell.robot->samples().points);
     run.ok = true, run.add_m = e.add_m, run.translation_m = e.translation_m, run.rotation_deg = e.rotation_deg;
     return;
   }
-  auto report = RegisterScene(cell.model_base, cell.scene_world, job.T_world_seed, job.options);
+  auto report = RegisterScene(*cell.robot, cell.scene_world, job.T_world_seed, job.options);
   if (!report.ok()) {
     run.error = report.status().ToString();
     return;
   }
-  const PoseError e = ComparePoses(report->T_world_base, truth, cell.model_base.points);
+  const PoseError e = ComparePoses(report->T_world_base, truth, cell.robot->samples().points);
   run.ok = true;
+  run.status = ResultStatusName(report->status);
   run.rms_m = report->rms_m, run.add_m = e.add_m, run.translation_m = e.translation_m, run.rotation_deg = e.rotation_deg;
   for (const auto& t : report->timings) run.stage_ms[t.stage] += t.ms;
   run.total_ms = report->total_ms();
@@ -88,7 +90,8 @@ double Quantile(std::vector<double> v, double q) {
 }  // namespace
 
 Result<std::vector<Cell>> MakeCells(const RobotModel& robot, const std::vector<std::string>& kinds, const std::string& size,
-                                    int cells_per_kind, int seeds_per_cell, std::uint64_t rng_seed) {
+                                    int cells_per_kind, int seeds_per_cell, std::uint64_t rng_seed,
+                                    const sim::SeedNoise& seed_noise) {
   std::vector<Cell> cells;
   const RegistrationOptions defaults;
   for (const auto& kind : kinds) {
@@ -101,15 +104,16 @@ Result<std::vector<Cell>> MakeCells(const RobotModel& robot, const std::vector<s
       std::mt19937_64 rng(seed);
       options->cell.joints = RandomJoints(robot, rng);
       options->seed_count = seeds_per_cell;
+      options->seed_noise = seed_noise;
       auto sim = sim::SimulateCell(robot, *options, seed);
       if (!sim.ok()) return sim.status().WithContext("bench cell " + kind + " " + std::to_string(i));
       Cell cell{kind, size, i, std::move(*sim), {}, {}};
       SpatialMesh map;
       for (auto& s : cell.sim.surfaces) ARREF_RETURN_IF_ERROR(map.Upsert(s));
       cell.scene_world = map.MergedWorld();
-      auto model = SampleRobot(robot, cell.sim.joints, defaults.model_samples, defaults.sample_seed);
+      auto model = RobotSide::Create(robot, cell.sim.joints, defaults.model_samples, defaults.sample_seed);
       if (!model.ok()) return model.status();
-      cell.model_base = std::move(*model);
+      cell.robot = std::move(*model);
       spdlog::info("bench: {} cell '{}' #{}: {} triangles", size, kind, i, cell.scene_world.triangles.size());
       cells.push_back(std::move(cell));
     }
@@ -144,7 +148,7 @@ Row Summarise(const std::vector<const Run*>& runs, std::map<std::string, std::st
   row.labels = std::move(labels);
   row.runs = runs.size();
   std::vector<double> rms, add, translation, rotation, reg, total, mls;
-  std::size_t successes = 0;
+  std::size_t successes = 0, within_20 = 0, said_ok = 0;
   for (const Run* r : runs) {
     row.peak_mb = std::max(row.peak_mb, r->peak_mb);
     if (!r->ok) {
@@ -153,13 +157,20 @@ Row Summarise(const std::vector<const Run*>& runs, std::map<std::string, std::st
       continue;
     }
     successes += r->add_m <= kSuccessAddM;
+    within_20 += r->add_m <= kWrongAddM;
+    said_ok += r->status == "OK";
+    // No robot in the cell: any OK is wrong.
+    row.wrong_ok += r->status == "OK" && (r->add_m > kWrongAddM || r->scene_kind == "empty");
     rms.push_back(r->rms_m * 1e3), add.push_back(r->add_m * 1e3);
     translation.push_back(r->translation_m * 1e3), rotation.push_back(r->rotation_deg);
     if (r->stage_ms.count("register")) reg.push_back(r->stage_ms.at("register"));
     if (r->stage_ms.count("mls")) mls.push_back(r->stage_ms.at("mls"));
     if (r->total_ms > 0) total.push_back(r->total_ms);
   }
-  row.success = runs.empty() ? 0 : static_cast<double>(successes) / static_cast<double>(runs.size());
+  const double n = std::max<double>(1.0, static_cast<double>(runs.size()));
+  row.success = static_cast<double>(successes) / n;
+  row.within_20mm = static_cast<double>(within_20) / n;
+  row.status_ok = static_cast<double>(said_ok) / n;
   row.rms_mean_mm = row.rms_min_mm = row.rms_max_mm = row.rms_std_mm = std::nan("");  // no successful run: no RMS
   if (!rms.empty()) {
     row.rms_mean_mm = std::accumulate(rms.begin(), rms.end(), 0.0) / static_cast<double>(rms.size());

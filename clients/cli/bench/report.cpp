@@ -30,6 +30,9 @@ const std::vector<Column>& StatColumns() {
       {"RMS max", [](const Row& r) { return Num(r.rms_max_mm, 2); }},
       {"RMS sigma", [](const Row& r) { return Num(r.rms_std_mm, 2); }},
       {"success (ADD<=10mm)", [](const Row& r) { return Num(r.success * 100, 0) + " %"; }},
+      {"ADD<=20mm", [](const Row& r) { return Num(r.within_20mm * 100, 0) + " %"; }},
+      {"said OK", [](const Row& r) { return Num(r.status_ok * 100, 0) + " %"; }},
+      {"wrong OK", [](const Row& r) { return std::to_string(r.wrong_ok); }},
       {"ADD median mm", [](const Row& r) { return Num(r.add_median_mm); }},
       {"ADD p95 mm", [](const Row& r) { return Num(r.add_p95_mm); }},
       {"transl. median mm", [](const Row& r) { return Num(r.translation_median_mm); }},
@@ -78,13 +81,13 @@ Status CsvTable(const std::string& path, const std::vector<Row>& rows, const std
 Status RunsCsv(const std::string& path, const std::vector<Run>& runs) {
   std::ofstream out(path);
   if (!out) return Status::IoError("cannot write " + path);
-  out << "experiment,method,size,params,scene,cell,seed,perturbation,seed_yaw_deg,offset_x,offset_y,offset_z,ok,"
+  out << "experiment,method,size,params,scene,cell,seed,perturbation,seed_yaw_deg,offset_x,offset_y,offset_z,ok,status,"
          "rms_mm,add_mm,translation_mm,rotation_deg,crop_ms,sample_ms,mls_ms,register_ms,total_ms,peak_mb,error\n";
   auto stage = [](const Run& r, const char* s) { return r.stage_ms.count(s) ? Num(r.stage_ms.at(s), 1) : ""; };
   for (const auto& r : runs)
-    out << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", r.experiment, Csv(r.method),
+    out << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", r.experiment, Csv(r.method),
                        r.size, Csv(r.params), r.scene_kind, r.cell, r.seed, r.perturbation, r.seed_yaw_deg,
-                       r.seed_offset_m.x(), r.seed_offset_m.y(), r.seed_offset_m.z(), r.ok ? 1 : 0, Num(r.rms_m * 1e3, 3),
+                       r.seed_offset_m.x(), r.seed_offset_m.y(), r.seed_offset_m.z(), r.ok ? 1 : 0, r.status, Num(r.rms_m * 1e3, 3),
                        Num(r.add_m * 1e3, 3), Num(r.translation_m * 1e3, 3), Num(r.rotation_deg, 3), stage(r, "crop"),
                        stage(r, "sample"), stage(r, "mls"), stage(r, "register"), Num(r.total_ms, 1), Num(r.peak_mb, 0),
                        Csv(r.error));

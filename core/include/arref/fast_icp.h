@@ -57,4 +57,9 @@ struct AlignmentScore {
 AlignmentScore ScoreAlignment(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
                               double inlier_threshold_m, double min_normal_cos);
 
+// Median point-to-plane distance of the source points that have a normal-compatible target
+// point within max_distance_m (infinity when none has): how closely a surface lies on the scene.
+double MedianPlaneDistance(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
+                           double max_distance_m, double min_normal_cos);
+
 }  // namespace arref

@@ -24,6 +24,10 @@ struct VisibilityOptions {
   bool floor = true;  // a floor at z = 0 of the base hides the faces standing on it
 };
 
+// The robot standing on a floor: a 20 m square at its base's z = 0 (or at its lowest point, if
+// lower), which hides the faces standing on it.
+TriangleMesh WithFloor(const TriangleMesh& robot_base);
+
 // Per sample point: the fraction of eye positions that see it (unoccluded, facing the eye).
 // Needs normals on the samples (outward, as from SampleSurface).
 // The points with visibility > 0, with their attributes. The whole cloud when it carries no

@@ -3,6 +3,9 @@
 #pragma once
 
 #include <functional>
+#include <map>
+#include <memory>
+#include <mutex>
 #include <optional>
 #include <string>
 #include <string_view>
@@ -55,6 +58,32 @@ using ProgressFn = std::function<void(std::string_view stage, double fraction)>;
 Result<PointCloud> SampleRobot(const RobotModel& robot, const JointValues& joints, std::size_t samples,
                                std::uint64_t seed);
 
+// The robot side of registrations, built once per robot and joint state and shared by
+// requests (the server caches it): the samples of SampleRobot, and the robot as a headset
+// would mesh it (model_reconstruction.h), made on first use for each voxel size.
+class RobotSide {
+ public:
+  static Result<std::shared_ptr<const RobotSide>> Create(const RobotModel& robot, const JointValues& joints,
+                                                         std::size_t samples, std::uint64_t seed);
+  const PointCloud& samples() const { return samples_; }
+  // Cached per millimetre of voxel size; thread-safe.
+  Result<std::shared_ptr<const PointCloud>> Expected(double voxel_m) const;
+
+ private:
+  RobotSide(TriangleMesh mesh_base, PointCloud samples, std::uint64_t seed);
+  TriangleMesh mesh_base_;
+  PointCloud samples_;
+  std::uint64_t seed_;
+  mutable std::mutex mutex_;
+  mutable std::map<long, std::shared_ptr<const PointCloud>> expected_;
+};
+
+// One request: crop, sample, optionally resample, register, measure. With a RobotSide,
+// methods that can fit the robot as the headset would mesh it (arref-icp) do so.
+Result<RegistrationReport> RegisterScene(const RobotSide& robot, const TriangleMesh& scene_world,
+                                         const Iso3& T_world_seed, const RegistrationOptions& options,
+                                         const ProgressFn& progress = {});
+// The same with the exact model surface only.
 Result<RegistrationReport> RegisterScene(const PointCloud& model_base, const TriangleMesh& scene_world,
                                          const Iso3& T_world_seed, const RegistrationOptions& options,
                                          const ProgressFn& progress = {});

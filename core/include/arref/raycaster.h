@@ -24,6 +24,10 @@ struct PinholeCamera {
   int PixelOf(const Vec3& p_camera) const;
 };
 
+// T_scene_camera of an optical camera at `eye` looking at `target`, image rows downwards in
+// gravity (z up); looking straight down, x points along the scene's y.
+Iso3 LookAt(const Vec3& eye, const Vec3& target);
+
 // Range along each pixel's ray (row-major), 0 where nothing is hit within max_range.
 using RangeImage = std::vector<float>;
 

@@ -35,6 +35,10 @@ struct ArrefIcpParams {
   std::size_t fine_points = 2000;
   int refine_top = 2;
   bool final_six_dof = false;      // a last 6-DoF step would absorb tilt of the headset world (robots stand upright)
+  // Fit the robot as the headset would mesh it (model_reconstruction.h) rather than its exact
+  // surface, when the caller supplies it (RegisterScene with a RobotSide does).
+  bool expected_surface = true;
+  double expected_voxel_m = 0.0;   // the headset mesh's voxel; 0: the cropped scene's median edge length
 };
 
 // Turns fit figures into a status (calibrated on simulated cells, see docs/engine.md). The
@@ -97,7 +101,7 @@ struct FpfhRansacParams {
 
 // One registry entry per value; the registry (methods.cpp) says which are available.
 enum class Method {
-  kPclIcp, kPclIcpPlane, kPclGicp, kSuper4pcs, kPcl4pcs, kPclK4pcs, kFpfhRansac, kArrefIcp,
+  kPclIcp, kPclIcpPlane, kPclGicp, kSuper4pcs, kPcl4pcs, kPclK4pcs, kFpfhRansac, kArrefIcp, kArrefIcpExact,
   kOpen3dIcp, kOpen3dIcpPlane,  // only when built with Open3D
 };
 
@@ -141,6 +145,8 @@ struct MethodInput {
   const Iso3& T_world_seed;
   const RegistrationOptions& options;
   const TargetCloud* scene_target = nullptr;  // scene_world's k-d tree when the caller built one
+  // The robot as the headset would mesh it, in the base frame (model_reconstruction.h), if known.
+  const PointCloud* model_expected = nullptr;
 };
 using MethodFn = std::function<Result<RegistrationOutput>(const MethodInput&)>;
 
@@ -150,6 +156,7 @@ struct MethodInfo {
   const char* description;
   MethodFn run;
   bool visible_model_only = false;  // fits (and so is measured on) the visible model points only
+  bool uses_expected_surface = false;  // fits MethodInput::model_expected when given
 };
 const std::vector<MethodInfo>& Methods();
 const MethodInfo& MethodInfoOf(Method method);

@@ -1,4 +1,4 @@
-#include "tsdf.h"
+#include "arref/tsdf.h"
 
 #include <spdlog/spdlog.h>
 #include <tbb/parallel_for.h>
@@ -7,7 +7,7 @@
 #include <cmath>
 #include <string>
 
-namespace arref::sim {
+namespace arref {
 namespace {
 
 constexpr int B = TsdfVolume::kBlock;
@@ -239,4 +239,4 @@ TriangleMesh TsdfVolume::ExtractMesh() const {
   return mesh;
 }
 
-}  // namespace arref::sim
+}  // namespace arref

@@ -12,7 +12,7 @@
 #include "arref/status.h"
 #include "arref/raycaster.h"
 
-namespace arref::sim {
+namespace arref {
 
 struct TsdfOptions {
   double voxel_m = 0.03;
@@ -76,4 +76,4 @@ class TsdfVolume {
   std::unordered_map<Key, int> index_;
 };
 
-}  // namespace arref::sim
+}  // namespace arref

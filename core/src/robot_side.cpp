@@ -1,0 +1,40 @@
+#include <spdlog/spdlog.h>
+
+#include <chrono>
+#include <cmath>
+
+#include "arref/model_reconstruction.h"
+#include "arref/pipeline.h"
+
+namespace arref {
+
+RobotSide::RobotSide(TriangleMesh mesh_base, PointCloud samples, std::uint64_t seed)
+    : mesh_base_(std::move(mesh_base)), samples_(std::move(samples)), seed_(seed) {}
+
+Result<std::shared_ptr<const RobotSide>> RobotSide::Create(const RobotModel& robot, const JointValues& joints,
+                                                           std::size_t samples, std::uint64_t seed) {
+  auto mesh = robot.PosedMesh(joints);
+  if (!mesh.ok()) return mesh.status();
+  auto cloud = SampleRobot(robot, joints, samples, seed);
+  if (!cloud.ok()) return cloud.status();
+  return std::shared_ptr<const RobotSide>(new RobotSide(std::move(*mesh), std::move(*cloud), seed));
+}
+
+Result<std::shared_ptr<const PointCloud>> RobotSide::Expected(double voxel_m) const {
+  const long key = std::lround(voxel_m * 1000);  // meshes a fraction of a millimetre apart fuse alike
+  // Built under the lock: concurrent requests for the same voxel wait for one build.
+  std::lock_guard lock(mutex_);
+  if (auto it = expected_.find(key); it != expected_.end()) return it->second;
+  const auto t0 = std::chrono::steady_clock::now();
+  ReconstructionOptions options;
+  options.voxel_m = key / 1000.0;
+  auto cloud = ExpectedRobotSurface(mesh_base_, options, samples_.size(), seed_);
+  if (!cloud.ok()) return cloud.status();
+  auto shared = std::make_shared<const PointCloud>(std::move(*cloud));
+  spdlog::debug("expected robot surface at {} mm voxels: {} points in {:.0f} ms", key, shared->size(),
+                std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+  expected_.emplace(key, shared);
+  return shared;
+}
+
+}  // namespace arref

@@ -27,6 +27,7 @@ struct BenchArgs {
   int scene_cells = 2;
   int scene_seeds = 3;
   bool seed_any_yaw = false;
+  bool walk_any_side = false;
   double seed_max_offset = 0.0;
   std::string only;  // comma-separated subset of sweep, perturb, scenes
   std::string command_line;
@@ -58,6 +59,7 @@ int Run(const BenchArgs& args) {
   if (!args.scene_kinds.empty()) config.scene_kinds = args.scene_kinds;
   config.seed_noise.any_yaw = args.seed_any_yaw;
   config.seed_noise.max_horizontal_m = args.seed_max_offset;
+  config.walk_any_side = args.walk_any_side;
   std::error_code ec;
   std::filesystem::create_directories(config.out_dir, ec);
   if (ec) return Fail(Status::IoError("--out " + config.out_dir + ": " + ec.message()));
@@ -108,6 +110,8 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
   cmd->add_option("--seed-max-offset", args->seed_max_offset,
                   "Scenes experiment: seeds' horizontal error uniform in a disc of this radius, m (0: user-like)")
       ->check(CLI::Range(0.0, 3.0));
+  cmd->add_flag("--walk-any-side", args->walk_any_side,
+                "Scenes experiment: each cell's robot turned at random, so the user maps any side of it (default: its front)");
   cmd->add_option("--only", args->only, "Run only these experiments: sweep, perturb, scenes (comma-separated)");
   cmd->callback([args, exit_code, cmd] {
     args->command_line = "arref bench";

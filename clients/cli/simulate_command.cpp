@@ -25,6 +25,7 @@ struct SimulateArgs {
   int clutter = -1;
   bool second_robot = false;
   double pedestal = 0;
+  double base_yaw_deg = 0;
   bool no_robot = false;
   bool seed_any_yaw = false;
   double seed_max_offset = 0;
@@ -48,6 +49,7 @@ int Run(const SimulateArgs& args) {
   if (args.clutter >= 0) options.cell.clutter_boxes = args.clutter;
   options.cell.second_robot = args.second_robot;
   options.cell.pedestal_height_m = args.pedestal;
+  options.cell.base_yaw_deg = args.base_yaw_deg;
   options.seed_count = args.seeds;
   options.cell.robot_present = !args.no_robot;
   options.seed_noise.any_yaw = args.seed_any_yaw;
@@ -114,6 +116,9 @@ void AddSimulateCommand(CLI::App& app, int* exit_code) {
   cmd->add_option("--clutter", args->clutter, "Number of clutter boxes")->check(CLI::Range(0, 200));
   cmd->add_flag("--second-robot", args->second_robot, "Place a second robot nearby");
   cmd->add_option("--pedestal", args->pedestal, "Pedestal height under the robot, m")->check(CLI::Range(0.0, 3.0));
+  cmd->add_option("--base-yaw", args->base_yaw_deg,
+                  "Robot heading in the cell, deg: the walker maps the cell's +x side, so this picks the robot's mapped side")
+      ->check(CLI::Range(-360.0, 360.0));
   cmd->add_option("--depth-noise", args->depth_noise, "Depth noise sigma along the ray, m (default 0.008)")
       ->check(CLI::Range(0.0, 0.1));
   cmd->add_option("--pose-jitter", args->pose_jitter,

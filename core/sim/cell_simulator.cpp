@@ -49,6 +49,7 @@ Status CheckAll(std::initializer_list<std::tuple<const char*, double, bool, cons
 Status ValidateCell(const CellOptions& c) {
   return CheckAll({
       {"cell.pedestal_height_m", c.pedestal_height_m, c.pedestal_height_m >= 0, "must be >= 0"},
+      {"cell.base_yaw_deg", c.base_yaw_deg, std::isfinite(c.base_yaw_deg), "must be finite"},
       {"cell.table_gap_m", c.table_gap_m, c.table_gap_m >= 0, "must be >= 0"},
       {"cell.clutter_boxes", c.clutter_boxes, c.clutter_boxes >= 0 && c.clutter_boxes <= 1000, "must be in [0, 1000]"},
       {"cell.second_robot_distance_m", c.second_robot_distance_m,

@@ -252,8 +252,10 @@ Result<CellScene> BuildCellScene(const RobotModel& robot, const CellOptions& opt
   if (!posed.ok()) return posed.status().WithContext("posing the robot");
   if (posed->empty()) return Status::FailedPrecondition("robot '" + robot.name() + "' has no geometry to simulate");
 
-  scene.T_cell_base = Iso3(Eigen::Translation3d(0, 0, options.pedestal_height_m));
-  scene.footprint_cell = Translated(FootprintOf(*posed), scene.T_cell_base.translation());
+  scene.T_cell_base = MakeYawPose(0, 0, options.pedestal_height_m, options.base_yaw_deg * std::numbers::pi / 180);
+  TriangleMesh headed;  // the posed robot turned to its heading, for its footprint in the cell
+  headed.Append(*posed, Iso3(scene.T_cell_base.linear()));
+  scene.footprint_cell = Translated(FootprintOf(headed), scene.T_cell_base.translation());
   // Without the robot the footprint stays reserved, so the rest of the cell is laid out alike.
   if (options.robot_present) scene.mesh.Append(*posed, scene.T_cell_base);
   scene.props.push_back({"robot_footprint", scene.footprint_cell});

@@ -5,6 +5,7 @@
 // x, y, z and yaw up to small tilt (domain notes, "Coordinate frames"). Local ICP falls into a
 // wrong basin beyond ~45 degrees of yaw or ~0.3 m of position error, so every yaw is tried;
 // unseen model surfaces pull ICP 2-3 cm off, so only visible ones are fitted.
+#include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
@@ -17,6 +18,7 @@
 
 #include "arref/fast_icp.h"
 #include "arref/model_visibility.h"
+#include "arref/pipeline.h"
 #include "arref/registration.h"
 
 namespace arref {
@@ -100,6 +102,32 @@ Candidate Refine(const PointCloud& fine, const TargetCloud& target, const Candid
   return {st.T_target_source, ScoreAlignment(fine, target, st.T_target_source, 0.02, 0.5).inlier_fraction, iterations};
 }
 
+// The expected surface assumes the robot was mapped from all round; a user maps one side, and
+// the other side's shell differs (measured: 4-6 mm of bias away from the walked side). Each
+// one-sided walk's surface is laid on the scene at the fitted pose; if one lies closer than the
+// all-round surface, the fit is refined with it. The walked side is judged by the whole shell's
+// shape (analysis by synthesis), not by which model parts have scene points nearby: at a
+// walker's height nearly every side is seen at some angle.
+Result<Candidate> RefineForWalk(const MethodInput& in, const PointCloud& all_round, const TargetCloud& target,
+                                const Candidate& best, PointCloud* fitted, std::vector<std::string>* stages) {
+  const ArrefIcpParams& p = in.options.arref_icp;
+  double best_d = MedianPlaneDistance(all_round, target, best.T_world_base, 0.03, 0.5);
+  int best_walk = -1;
+  std::shared_ptr<const PointCloud> best_surface;
+  for (int walk = 0; walk < RobotSide::kWalks; ++walk) {
+    auto surface = in.robot->Expected(in.voxel_m, walk);
+    if (!surface.ok()) return surface.status().WithContext("arref-icp");
+    const double d = MedianPlaneDistance(Thin(**surface, p.fine_points), target, best.T_world_base, 0.03, 0.5);
+    spdlog::debug("arref-icp: walk {}: median plane distance {:.2f} mm", walk, d * 1e3);
+    if (d < best_d) best_d = d, best_walk = walk, best_surface = *surface;
+  }
+  if (best_walk < 0) return best;
+  *fitted = Thin(*best_surface, p.fine_points);
+  stages->push_back(fmt::format("walk-{}", best_walk));
+  Candidate c = Refine(*fitted, target, {best.T_world_base, best.score, 0}, p);
+  return Candidate{c.T_world_base, best.score, best.iterations + c.iterations};
+}
+
 // Which surface explains the scene: a fused headset mesh is matched by the expected surface,
 // exact geometry (a CAD scene, a fine scan) by the exact one. The winner is refined with the exact
 // visible surface too, and whichever lies closer to the scene's tangent planes is kept.
@@ -158,7 +186,15 @@ Result<RegistrationOutput> RegisterArrefIcp(const MethodInput& in) {
   spdlog::debug("arref-icp: {} hypotheses, fine refinement {:.1f} ms", candidates.size(),
                 std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_coarse).count());
   out.stages.push_back("arref-icp");
-  if (in.model_expected) refined.front() = ExactIfCloser(in, fine, target, refined.front(), &out.stages);
+  if (in.model_expected) {
+    PointCloud fitted = fine;
+    if (in.robot && p.select_walk) {
+      auto walked = RefineForWalk(in, fine, target, refined.front(), &fitted, &out.stages);
+      if (!walked.ok()) return walked.status();
+      refined.front() = *walked;
+    }
+    refined.front() = ExactIfCloser(in, fitted, target, refined.front(), &out.stages);
+  }
   out.T_world_base = refined.front().T_world_base;
   out.score = refined.front().score;
   out.margin = refined.size() > 1 ? refined[0].score - refined[1].score : refined[0].score;

@@ -19,41 +19,65 @@ Status CheckOptions(const ReconstructionOptions& o) {
   if (!(o.voxel_m >= 0.002 && o.voxel_m <= 0.5))
     return Status::InvalidArgument(fmt::format("expected surface: voxel {} m is outside [0.002, 0.5] m", o.voxel_m));
   if (!(o.truncation_voxels >= 1)) return Status::InvalidArgument("expected surface: truncation must be >= 1 voxel");
+  if (!(o.arc_deg > 0 && o.arc_deg <= 360) || !std::isfinite(o.arc_center_deg))
+    return Status::InvalidArgument(fmt::format("expected surface: arc {} deg must be in (0, 360]", o.arc_deg));
   if (o.azimuths < 1 || !(o.pixels_per_voxel > 0) || !(o.distance_m > 0) || !(o.fov_horizontal_deg > 0 && o.fov_horizontal_deg < 170))
     return Status::InvalidArgument("expected surface: needs eye positions and an image size");
   return Status::Ok();
 }
 
-Result<TriangleMesh> FuseRobot(const TriangleMesh& robot_base, const ReconstructionOptions& o) {
+}  // namespace
+
+struct ExpectedSurfaceMaker::Parts {
+  RayCaster caster;  // the robot on its floor
+  PointIndex robot;  // dense samples of the exact surface: which fused triangles are robot
+  Aabb box;
+  std::uint64_t seed;
+};
+
+ExpectedSurfaceMaker::ExpectedSurfaceMaker(std::unique_ptr<Parts> parts) : parts_(std::move(parts)) {}
+ExpectedSurfaceMaker::ExpectedSurfaceMaker(ExpectedSurfaceMaker&&) noexcept = default;
+ExpectedSurfaceMaker& ExpectedSurfaceMaker::operator=(ExpectedSurfaceMaker&&) noexcept = default;
+ExpectedSurfaceMaker::~ExpectedSurfaceMaker() = default;
+
+Result<ExpectedSurfaceMaker> ExpectedSurfaceMaker::Create(const TriangleMesh& robot_base, std::uint64_t seed) {
+  if (robot_base.empty()) return Status::InvalidArgument("expected surface: the robot has no geometry");
   auto caster = RayCaster::Create(WithFloor(robot_base));
-  if (!caster.ok()) return caster.status();
-  const Aabb box = BoundsOf(robot_base.vertices);
-  const Vec3 centre = ((box.min + box.max) / 2).cast<double>();
+  if (!caster.ok()) return caster.status().WithContext("expected surface");
+  return ExpectedSurfaceMaker(std::make_unique<Parts>(
+      Parts{std::move(*caster), PointIndex(SampleSurface(robot_base, 20000, seed).points), BoundsOf(robot_base.vertices),
+            seed}));
+}
+
+Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const ReconstructionOptions& o) const {
+  const Vec3 centre = ((parts_->box.min + parts_->box.max) / 2).cast<double>();
   TsdfOptions tsdf;
   tsdf.voxel_m = o.voxel_m;
   tsdf.truncation_m = std::max(o.truncation_voxels * o.voxel_m, o.min_truncation_m);
   tsdf.crop_center = centre;
-  tsdf.crop_radius_m = 0.5 * (box.max - box.min).norm() + 2 * tsdf.truncation_m;
+  tsdf.crop_radius_m = 0.5 * (parts_->box.max - parts_->box.min).norm() + 2 * tsdf.truncation_m;
   TsdfVolume volume(tsdf);
   const double image_width_m = 2 * o.distance_m * std::tan(o.fov_horizontal_deg * std::numbers::pi / 360);
   const int width = std::clamp(static_cast<int>(std::ceil(image_width_m / o.voxel_m * o.pixels_per_voxel)), 64, 2048);
   const PinholeCamera camera = PinholeCamera::FromFov(width, width * 9 / 10, o.fov_horizontal_deg);
   const double max_range = o.distance_m + 2 * tsdf.crop_radius_m + o.eye_height_m;
+  // A full circle has no ends: its eyes are spread without doubling the first.
+  const double step = o.arc_deg >= 360 ? 360.0 / o.azimuths : o.arc_deg / std::max(1, o.azimuths - 1);
+  const double first = o.arc_deg >= 360 ? 0.0 : -o.arc_deg / 2;
   for (int a = 0; a < o.azimuths; ++a) {
-    const double azimuth = 2 * std::numbers::pi * a / o.azimuths;
+    const double azimuth = (o.arc_center_deg + first + step * a) * std::numbers::pi / 180;
     const Iso3 T_base_camera =
         LookAt(Vec3(o.distance_m * std::cos(azimuth), o.distance_m * std::sin(azimuth), o.eye_height_m), centre);
     std::vector<float> incidence;
-    const RangeImage range = caster->Render(camera, T_base_camera, max_range, &incidence);
+    const RangeImage range = parts_->caster.Render(camera, T_base_camera, max_range, &incidence);
     ARREF_RETURN_IF_ERROR(volume.Integrate(camera, T_base_camera, range, incidence));
   }
   return volume.ExtractMesh();
 }
 
 // The fused triangles that belong to the robot: nearer to its surface than to the floor.
-TriangleMesh RobotPart(const TriangleMesh& fused, const TriangleMesh& robot_base, std::uint64_t seed) {
-  const PointIndex robot(SampleSurface(robot_base, 20000, seed).points);
-  const float floor_z = std::min(0.0f, BoundsOf(robot_base.vertices).min.z());
+TriangleMesh ExpectedSurfaceMaker::RobotPart(const TriangleMesh& fused) const {
+  const float floor_z = std::min(0.0f, parts_->box.min.z());
   TriangleMesh out;
   out.vertices = fused.vertices;
   for (const Triangle& t : fused.triangles) {
@@ -61,24 +85,28 @@ TriangleMesh RobotPart(const TriangleMesh& fused, const TriangleMesh& robot_base
     const float to_floor = c.z() - floor_z;
     std::uint32_t i;
     float sq;
-    if (robot.NearestWithin(c, to_floor * to_floor, &i, &sq)) out.triangles.push_back(t);
+    if (parts_->robot.NearestWithin(c, to_floor * to_floor, &i, &sq)) out.triangles.push_back(t);
   }
   return out;
 }
 
-}  // namespace
+Result<PointCloud> ExpectedSurfaceMaker::Make(const ReconstructionOptions& options, std::size_t samples) const {
+  ARREF_RETURN_IF_ERROR(CheckOptions(options));
+  auto fused = Fuse(options);
+  if (!fused.ok()) return fused.status().WithContext("expected surface");
+  const TriangleMesh robot = RobotPart(*fused);
+  if (robot.empty())
+    return Status::FailedPrecondition(
+        fmt::format("expected surface: nothing of the robot survives fusion at {} m voxels", options.voxel_m));
+  return SampleSurface(robot, samples, parts_->seed);
+}
 
 Result<PointCloud> ExpectedRobotSurface(const TriangleMesh& robot_base, const ReconstructionOptions& options,
                                         std::size_t samples, std::uint64_t seed) {
   ARREF_RETURN_IF_ERROR(CheckOptions(options));
-  if (robot_base.empty()) return Status::InvalidArgument("expected surface: the robot has no geometry");
-  auto fused = FuseRobot(robot_base, options);
-  if (!fused.ok()) return fused.status().WithContext("expected surface");
-  const TriangleMesh robot = RobotPart(*fused, robot_base, seed);
-  if (robot.empty())
-    return Status::FailedPrecondition(
-        fmt::format("expected surface: nothing of the robot survives fusion at {} m voxels", options.voxel_m));
-  return SampleSurface(robot, samples, seed);
+  auto maker = ExpectedSurfaceMaker::Create(robot_base, seed);
+  if (!maker.ok()) return maker.status();
+  return maker->Make(options, samples);
 }
 
 double MedianEdgeLength(const TriangleMesh& mesh) {

@@ -128,9 +128,10 @@ Result<RegistrationReport> Register(const PointCloud& model_base, const RobotSid
   }
 
   std::shared_ptr<const PointCloud> expected;
+  double voxel = 0;
   if (robot && MethodInfoOf(options.method).uses_expected_surface && options.arref_icp.expected_surface) {
     clock.Start("expected-surface", 0.05);  // a cache hit after the first request per voxel size
-    const double voxel = options.arref_icp.expected_voxel_m > 0 ? options.arref_icp.expected_voxel_m : MedianEdgeLength(cropped);
+    voxel = options.arref_icp.expected_voxel_m > 0 ? options.arref_icp.expected_voxel_m : MedianEdgeLength(cropped);
     auto e = ExpectedSurface(*robot, voxel);
     if (!e.ok()) return e.status();
     expected = *e;
@@ -158,7 +159,7 @@ Result<RegistrationReport> Register(const PointCloud& model_base, const RobotSid
   // One k-d tree of the scene serves the method (when it takes one) and the evaluation.
   const TargetCloud target(scene);
   clock.Start("register", 0.3);
-  auto out = MethodInfoOf(options.method).run(MethodInput{model_base, scene, T_world_seed, options, &target, expected.get()});
+  auto out = MethodInfoOf(options.method).run(MethodInput{model_base, scene, T_world_seed, options, &target, expected.get(), robot, voxel});
   if (!out.ok()) return out.status().WithContext(report.method);
   report.T_world_base = out->T_world_base;
   report.iterations = out->iterations;

@@ -1,3 +1,4 @@
+#include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
 #include <chrono>
@@ -7,6 +8,9 @@
 #include "arref/pipeline.h"
 
 namespace arref {
+namespace {
+constexpr double kWalkArcDeg = 220.0;  // the side a user maps walking round a robot
+}  // namespace
 
 RobotSide::RobotSide(TriangleMesh mesh_base, PointCloud samples, std::uint64_t seed)
     : mesh_base_(std::move(mesh_base)), samples_(std::move(samples)), seed_(seed) {}
@@ -20,18 +24,26 @@ Result<std::shared_ptr<const RobotSide>> RobotSide::Create(const RobotModel& rob
   return std::shared_ptr<const RobotSide>(new RobotSide(std::move(*mesh), std::move(*cloud), seed));
 }
 
-Result<std::shared_ptr<const PointCloud>> RobotSide::Expected(double voxel_m) const {
-  const long key = std::lround(voxel_m * 1000);  // meshes a fraction of a millimetre apart fuse alike
+Result<std::shared_ptr<const PointCloud>> RobotSide::Expected(double voxel_m, int walk) const {
+  if (walk < -1 || walk >= kWalks) return Status::InvalidArgument(fmt::format("no walk {} round the robot", walk));
+  // Meshes a fraction of a millimetre apart fuse alike.
+  const std::pair<long, int> key{std::lround(voxel_m * 1000), walk};
   // Built under the lock: concurrent requests for the same voxel wait for one build.
   std::lock_guard lock(mutex_);
   if (auto it = expected_.find(key); it != expected_.end()) return it->second;
   const auto t0 = std::chrono::steady_clock::now();
   ReconstructionOptions options;
-  options.voxel_m = key / 1000.0;
-  auto cloud = ExpectedRobotSurface(mesh_base_, options, samples_.size(), seed_);
+  options.voxel_m = key.first / 1000.0;
+  if (walk >= 0) options.arc_deg = kWalkArcDeg, options.arc_center_deg = 360.0 * walk / kWalks;
+  if (!maker_) {
+    auto maker = ExpectedSurfaceMaker::Create(mesh_base_, seed_);
+    if (!maker.ok()) return maker.status();
+    maker_ = std::make_shared<const ExpectedSurfaceMaker>(std::move(*maker));
+  }
+  auto cloud = maker_->Make(options, samples_.size());
   if (!cloud.ok()) return cloud.status();
   auto shared = std::make_shared<const PointCloud>(std::move(*cloud));
-  spdlog::debug("expected robot surface at {} mm voxels: {} points in {:.0f} ms", key, shared->size(),
+  spdlog::debug("expected robot surface at {} mm voxels, walk {}: {} points in {:.0f} ms", key.first, walk, shared->size(),
                 std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
   expected_.emplace(key, shared);
   return shared;

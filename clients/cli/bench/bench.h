@@ -31,6 +31,7 @@ struct Config {
   int scene_cells = 2;  // per kind
   int scene_seeds = 3;  // per cell
   sim::SeedNoise seed_noise;
+  bool walk_any_side = false;  // each cell's robot turned at random: the user maps any side of it
 };
 
 // A simulated cell with everything a run needs.
@@ -70,7 +71,7 @@ struct Job {
 
 Result<std::vector<Cell>> MakeCells(const RobotModel& robot, const std::vector<std::string>& kinds, const std::string& size,
                                     int cells_per_kind, int seeds_per_cell, std::uint64_t rng_seed,
-                                    const sim::SeedNoise& seed_noise = {});
+                                    const sim::SeedNoise& seed_noise = {}, bool walk_any_side = false);
 // Runs every job (in parallel when jobs > 1) and returns their runs in order.
 std::vector<Run> Execute(std::vector<Job>& jobs, int parallel_jobs);
 

@@ -10,6 +10,7 @@
 #pragma once
 
 #include <cstdint>
+#include <memory>
 
 #include "arref/geometry.h"
 #include "arref/status.h"
@@ -20,17 +21,36 @@ struct ReconstructionOptions {
   double voxel_m = 0.035;         // the headset mesh's voxel (its median edge length)
   double truncation_voxels = 3.0;
   double min_truncation_m = 0.05;  // >= 6 sigma of the HoloLens' ~8 mm depth noise
-  // Eyes on a circle all round the robot: which side a user walked is not known. Measured:
-  // walking only the simulated user's 220 degree arc instead took the ADD of noise-free
-  // cells from 4-8 mm to 3-4 mm; judging the walked side from the scene did not work (see
-  // docs/engine.md).
+  // Eyes on an arc of a circle round the robot, centred on arc_center_deg from the base's +x
+  // (counter-clockwise); 360: all round. A user who mapped one side of the robot walked an arc.
   int azimuths = 24;
+  double arc_deg = 360.0;
+  double arc_center_deg = 0.0;
   double distance_m = 1.9;        // from the base, horizontally
   double eye_height_m = 1.65;     // above the base's z = 0
   // Images as fine as the voxels need: a pixel covers 1 / pixels_per_voxel of a voxel at the
   // robot's distance (finer costs time and changes nothing: the TSDF averages within a voxel).
   double pixels_per_voxel = 2.0;
   double fov_horizontal_deg = 75.0;
+};
+
+// Makes expected surfaces of one posed robot: the ray caster of the robot on its floor and the
+// index of its exact surface are built once and shared by every voxel size and walk.
+class ExpectedSurfaceMaker {
+ public:
+  static Result<ExpectedSurfaceMaker> Create(const TriangleMesh& robot_base, std::uint64_t seed);
+  ExpectedSurfaceMaker(ExpectedSurfaceMaker&&) noexcept;
+  ExpectedSurfaceMaker& operator=(ExpectedSurfaceMaker&&) noexcept;
+  ~ExpectedSurfaceMaker();
+  // As ExpectedRobotSurface. Const and thread-safe.
+  Result<PointCloud> Make(const ReconstructionOptions& options, std::size_t samples) const;
+
+ private:
+  struct Parts;
+  explicit ExpectedSurfaceMaker(std::unique_ptr<Parts> parts);
+  Result<TriangleMesh> Fuse(const ReconstructionOptions& options) const;
+  TriangleMesh RobotPart(const TriangleMesh& fused) const;
+  std::unique_ptr<Parts> parts_;
 };
 
 // The fused robot's surface in its base frame, sampled (`samples` points with outward normals),

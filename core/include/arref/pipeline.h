@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "arref/geometry.h"
+#include "arref/model_reconstruction.h"
 #include "arref/registration.h"
 #include "arref/robot_model.h"
 #include "arref/sampling.h"
@@ -66,8 +67,10 @@ class RobotSide {
   static Result<std::shared_ptr<const RobotSide>> Create(const RobotModel& robot, const JointValues& joints,
                                                          std::size_t samples, std::uint64_t seed);
   const PointCloud& samples() const { return samples_; }
-  // Cached per millimetre of voxel size; thread-safe.
-  Result<std::shared_ptr<const PointCloud>> Expected(double voxel_m) const;
+  // Cached per millimetre of voxel size and walk; thread-safe. walk -1: all round; k in
+  // [0, kWalks): a 220 degree arc centred at k * 360 / kWalks degrees.
+  static constexpr int kWalks = 8;
+  Result<std::shared_ptr<const PointCloud>> Expected(double voxel_m, int walk = -1) const;
 
  private:
   RobotSide(TriangleMesh mesh_base, PointCloud samples, std::uint64_t seed);
@@ -75,7 +78,8 @@ class RobotSide {
   PointCloud samples_;
   std::uint64_t seed_;
   mutable std::mutex mutex_;
-  mutable std::map<long, std::shared_ptr<const PointCloud>> expected_;
+  mutable std::shared_ptr<const ExpectedSurfaceMaker> maker_;  // made on first use
+  mutable std::map<std::pair<long, int>, std::shared_ptr<const PointCloud>> expected_;
 };
 
 // One request: crop, sample, optionally resample, register, measure. With a RobotSide,

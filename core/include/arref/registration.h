@@ -39,6 +39,7 @@ struct ArrefIcpParams {
   // surface, when the caller supplies it (RegisterScene with a RobotSide does).
   bool expected_surface = true;
   double expected_voxel_m = 0.0;   // the headset mesh's voxel; 0: the cropped scene's median edge length
+  bool select_walk = true;         // also try surfaces of one-sided walks round the robot (arref_icp.cpp)
 };
 
 // Turns fit figures into a status (calibrated on simulated cells, see docs/engine.md). The
@@ -138,6 +139,7 @@ struct RegistrationOutput {
 
 // What a method gets: model points in the robot base frame, scene points in world, the seed.
 class TargetCloud;  // fast_icp.h
+class RobotSide;    // pipeline.h
 
 struct MethodInput {
   const PointCloud& model_base;
@@ -145,8 +147,11 @@ struct MethodInput {
   const Iso3& T_world_seed;
   const RegistrationOptions& options;
   const TargetCloud* scene_target = nullptr;  // scene_world's k-d tree when the caller built one
-  // The robot as the headset would mesh it, in the base frame (model_reconstruction.h), if known.
+  // The robot as the headset would mesh it, in the base frame (model_reconstruction.h), if known,
+  // walked all round; `robot` makes it for one-sided walks at this voxel size.
   const PointCloud* model_expected = nullptr;
+  const RobotSide* robot = nullptr;
+  double voxel_m = 0.0;
 };
 using MethodFn = std::function<Result<RegistrationOutput>(const MethodInput&)>;
 

@@ -19,6 +19,9 @@ struct CellOptions {
   JointValues joints;               // robot pose; unnamed joints are 0
   bool robot_present = true;        // false: an empty cell (where a registration must not say OK)
   double pedestal_height_m = 0.0;   // 0: robot on the floor
+  // The robot's heading in the cell. The walker circles the cell's +x side, so this sets which
+  // side of the robot gets mapped (0: its front).
+  double base_yaw_deg = 0.0;
   bool walls = true;                // two walls meeting behind the robot
   bool table = true;                // a table beside the robot
   double table_gap_m = 0.2;         // table edge to robot base footprint (or pedestal), 0.05-0.4 typical

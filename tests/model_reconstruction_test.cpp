@@ -1,0 +1,124 @@
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <cmath>
+
+#include "arref/model_reconstruction.h"
+#include "arref/pipeline.h"
+#include "test_support.h"
+
+namespace arref {
+namespace {
+
+constexpr double kVoxel = 0.035;  // the small configuration's headset voxel
+
+// An axis-aligned box standing on z = 0, outward (counter-clockwise) winding.
+TriangleMesh Box(float sx, float sy, float sz) {
+  TriangleMesh m;
+  for (int i = 0; i < 8; ++i)
+    m.vertices.push_back({(i & 1 ? 0.5f : -0.5f) * sx, (i & 2 ? 0.5f : -0.5f) * sy, (i & 4 ? 1.0f : 0.0f) * sz});
+  m.triangles = {{0, 2, 3}, {0, 3, 1}, {4, 5, 7}, {4, 7, 6}, {0, 1, 5}, {0, 5, 4},
+                 {2, 6, 7}, {2, 7, 3}, {0, 4, 6}, {0, 6, 2}, {1, 3, 7}, {1, 7, 5}};
+  return m;
+}
+
+// Signed distance to an axis-aligned box [-h, h] x [-h, h] x [0, z] (positive outside).
+double BoxDistance(const Vec3f& p, double hx, double hy, double z) {
+  const Eigen::Vector3d q(std::abs(p.x()) - hx, std::abs(p.y()) - hy, std::abs(p.z() - z / 2) - z / 2);
+  const double outside = q.cwiseMax(0.0).norm();
+  return outside > 0 ? outside : q.maxCoeff();
+}
+
+TEST(ExpectedSurface, HugsTheRobotAndLeavesTheFloorOut) {
+  ReconstructionOptions o;
+  o.voxel_m = kVoxel;
+  auto cloud = ExpectedRobotSurface(Box(0.4f, 0.4f, 0.8f), o, 5000, 1);
+  ASSERT_TRUE(cloud.ok()) << cloud.status().ToString();
+  ASSERT_EQ(cloud->size(), 5000u);
+  ASSERT_TRUE(cloud->has_normals());
+  std::size_t top = 0, outward = 0, sides = 0;
+  std::vector<double> side_distance;
+  for (std::size_t i = 0; i < cloud->size(); ++i) {
+    const Vec3f& p = cloud->points[i];
+    const Vec3f& n = cloud->normals[i];
+    // A fused shell strays from the surface by a fraction of a voxel, never by more than two.
+    EXPECT_LT(std::abs(BoxDistance(p, 0.2, 0.2, 0.8)), 2 * kVoxel) << p.transpose();
+    top += p.z() > 0.8 - kVoxel && n.z() > 0.9f;
+    if (std::abs(n.z()) < 0.5f) {
+      ++sides;
+      outward += n.head<2>().dot(p.head<2>()) > 0;
+      if (p.z() > 0.2 && p.z() < 0.6) side_distance.push_back(BoxDistance(p, 0.2, 0.2, 0.8));
+    }
+  }
+  EXPECT_GT(top, 300u) << "the top face is seen from a walker's height";
+  EXPECT_GT(sides, 2000u);
+  EXPECT_GT(outward, sides * 95 / 100) << "normals face free space";
+  // On flat faces the shell lies on the surface (TSDF with incidence correction).
+  std::nth_element(side_distance.begin(), side_distance.begin() + side_distance.size() / 2, side_distance.end());
+  EXPECT_LT(std::abs(side_distance[side_distance.size() / 2]), 0.005);
+}
+
+TEST(ExpectedSurface, OneSidedWalkLeavesTheFarSideOut) {
+  ReconstructionOptions o;
+  o.voxel_m = kVoxel;
+  auto round = ExpectedRobotSurface(Box(0.4f, 0.4f, 0.8f), o, 4000, 1);
+  o.arc_deg = 120, o.arc_center_deg = 0;  // walked in front of +x only
+  auto front = ExpectedRobotSurface(Box(0.4f, 0.4f, 0.8f), o, 4000, 1);
+  ASSERT_TRUE(round.ok() && front.ok());
+  auto facing_back = [](const PointCloud& c) {
+    return std::count_if(c.normals.begin(), c.normals.end(), [](const Vec3f& n) { return n.x() < -0.9f; });
+  };
+  EXPECT_GT(facing_back(*round), 400);  // a fifth of the side area faces -x
+  EXPECT_LT(facing_back(*front), 40);
+}
+
+TEST(ExpectedSurface, BadOptionsNameTheProblem) {
+  ReconstructionOptions o;
+  o.voxel_m = 0;
+  auto r = ExpectedRobotSurface(Box(0.4f, 0.4f, 0.8f), o, 100, 1);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.status().ToString().find("voxel"), std::string::npos) << r.status().ToString();
+  o.voxel_m = kVoxel, o.arc_deg = 0;
+  r = ExpectedRobotSurface(Box(0.4f, 0.4f, 0.8f), o, 100, 1);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.status().ToString().find("arc"), std::string::npos) << r.status().ToString();
+  o.arc_deg = 360;
+  r = ExpectedRobotSurface(TriangleMesh{}, o, 100, 1);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.status().ToString().find("no geometry"), std::string::npos) << r.status().ToString();
+}
+
+TEST(ExpectedSurface, MedianEdgeLengthIsTheGridStep) {
+  TriangleMesh grid;  // 10 x 10 squares of 1 cm, two triangles each
+  for (int y = 0; y <= 10; ++y)
+    for (int x = 0; x <= 10; ++x) grid.vertices.push_back({0.01f * x, 0.01f * y, 0});
+  for (std::uint32_t y = 0; y < 10; ++y)
+    for (std::uint32_t x = 0; x < 10; ++x) {
+      const std::uint32_t v = y * 11 + x;
+      grid.triangles.push_back({v, v + 1, v + 12});
+      grid.triangles.push_back({v, v + 12, v + 11});
+    }
+  EXPECT_NEAR(MedianEdgeLength(grid), 0.01, 1e-6);
+  EXPECT_EQ(MedianEdgeLength(TriangleMesh{}), 0.0);
+}
+
+TEST(RobotSide, ExpectedSurfacesAreCachedPerVoxelAndWalk) {
+  auto robot = RobotModel::Load(testing::BuiltinRobotUrdf());
+  ASSERT_TRUE(robot.ok()) << robot.status().ToString();
+  auto side = RobotSide::Create(*robot, {}, 3000, 1);
+  ASSERT_TRUE(side.ok()) << side.status().ToString();
+  EXPECT_EQ((*side)->samples().size(), 3000u);
+  auto a = (*side)->Expected(kVoxel);
+  auto b = (*side)->Expected(kVoxel + 0.0002);  // the same millimetre: the same surface
+  auto walk = (*side)->Expected(kVoxel, 0);
+  ASSERT_TRUE(a.ok() && b.ok() && walk.ok());
+  EXPECT_EQ(a->get(), b->get());
+  EXPECT_NE(a->get(), walk->get());
+  EXPECT_EQ((*a)->size(), 3000u);
+  auto bad = (*side)->Expected(kVoxel, RobotSide::kWalks);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.status().ToString().find("walk"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace arref

@@ -99,6 +99,11 @@ nlohmann::json ReportJson(const RegistrationReport& r, FrameConvention frame) {
   for (const auto& t : r.timings) timings[t.stage] = t.ms;
   timings["total"] = r.total_ms();
   j["timings_ms"] = timings;
+  if (!r.method_steps.empty()) {
+    nlohmann::json steps;  // inside the "register" stage
+    for (const auto& t : r.method_steps) steps[t.stage] = t.ms;
+    j["method_steps_ms"] = steps;
+  }
   return j;
 }
 

@@ -111,18 +111,24 @@ Candidate Refine(const PointCloud& fine, const TargetCloud& target, const Candid
 Result<Candidate> RefineForWalk(const MethodInput& in, const PointCloud& all_round, const TargetCloud& target,
                                 const Candidate& best, PointCloud* fitted, std::vector<std::string>* stages) {
   const ArrefIcpParams& p = in.options.arref_icp;
+  std::vector<PointCloud> surfaces;  // the walks' surfaces, thinned as the all-round one
+  for (int walk = 0; walk < RobotSide::kWalks; ++walk) {
+    auto surface = in.robot->Expected(in.voxel_m, walk);  // built once, then cached
+    if (!surface.ok()) return surface.status().WithContext("arref-icp");
+    surfaces.push_back(Thin(**surface, p.fine_points));
+  }
+  std::vector<double> d(surfaces.size());
+  tbb::parallel_for(std::size_t{0}, surfaces.size(), [&](std::size_t w) {
+    d[w] = MedianPlaneDistance(surfaces[w], target, best.T_world_base, 0.03, 0.5);
+  });
   double best_d = MedianPlaneDistance(all_round, target, best.T_world_base, 0.03, 0.5);
   int best_walk = -1;
-  std::shared_ptr<const PointCloud> best_surface;
   for (int walk = 0; walk < RobotSide::kWalks; ++walk) {
-    auto surface = in.robot->Expected(in.voxel_m, walk);
-    if (!surface.ok()) return surface.status().WithContext("arref-icp");
-    const double d = MedianPlaneDistance(Thin(**surface, p.fine_points), target, best.T_world_base, 0.03, 0.5);
-    spdlog::debug("arref-icp: walk {}: median plane distance {:.2f} mm", walk, d * 1e3);
-    if (d < best_d) best_d = d, best_walk = walk, best_surface = *surface;
+    spdlog::debug("arref-icp: walk {}: median plane distance {:.2f} mm", walk, d[walk] * 1e3);
+    if (d[walk] < best_d) best_d = d[walk], best_walk = walk;
   }
   if (best_walk < 0) return best;
-  *fitted = Thin(*best_surface, p.fine_points);
+  *fitted = std::move(surfaces[best_walk]);
   stages->push_back(fmt::format("walk-{}", best_walk));
   Candidate c = Refine(*fitted, target, {best.T_world_base, best.score, 0}, p);
   return Candidate{c.T_world_base, best.score, best.iterations + c.iterations};
@@ -148,6 +154,39 @@ Candidate ExactIfCloser(const MethodInput& in, const PointCloud& expected_fine, 
   return best;
 }
 
+// Every yaw round the seed, and when none fits well a grid of positions too, each given a
+// coarse 4-DoF alignment and scored.
+std::vector<Candidate> SearchPoses(const PointCloud& coarse, const TargetCloud& target, const Iso3& seed,
+                                   const ArrefIcpParams& p, RegistrationOutput* out) {
+  out->stages.push_back("yaw-search");
+  std::vector<Candidate> candidates = CoarseSearch(coarse, target, Hypotheses(seed, p, 0));
+  const double best_coarse = Distinct(candidates, 1).front().score;
+  if (best_coarse < p.expand_below_score && p.position_steps > 0) {
+    spdlog::debug("arref-icp: best coarse score {:.2f} < {:.2f}: searching positions too", best_coarse,
+                  p.expand_below_score);
+    const auto more = CoarseSearch(coarse, target, Hypotheses(seed, p, p.position_steps));
+    candidates.insert(candidates.end(), more.begin(), more.end());
+    out->stages.push_back("position-search");
+  }
+  out->hypotheses = static_cast<int>(candidates.size());
+  return candidates;
+}
+
+// Appends the time since the last call (or construction) to out under a step name.
+class StepTimer {
+ public:
+  explicit StepTimer(RegistrationOutput* out) : out_(out) {}
+  void Step(const char* name) {
+    const auto now = std::chrono::steady_clock::now();
+    out_->step_ms.emplace_back(name, std::chrono::duration<double, std::milli>(now - last_).count());
+    last_ = now;
+  }
+
+ private:
+  RegistrationOutput* out_;
+  std::chrono::steady_clock::time_point last_ = std::chrono::steady_clock::now();
+};
+
 }  // namespace
 
 Result<RegistrationOutput> RegisterArrefIcp(const MethodInput& in) {
@@ -166,34 +205,25 @@ Result<RegistrationOutput> RegisterArrefIcp(const MethodInput& in) {
   const TargetCloud& target = in.scene_target ? *in.scene_target : *own_target;
 
   RegistrationOutput out;
-  out.stages = {"yaw-search"};
-  std::vector<Candidate> candidates = CoarseSearch(coarse, target, Hypotheses(in.T_world_seed, p, 0));
-  out.hypotheses = static_cast<int>(candidates.size());
-  const double best_coarse = Distinct(candidates, 1).front().score;
-  if (best_coarse < p.expand_below_score && p.position_steps > 0) {
-    spdlog::debug("arref-icp: best coarse score {:.2f} < {:.2f}: searching positions too", best_coarse,
-                  p.expand_below_score);
-    const auto more = CoarseSearch(coarse, target, Hypotheses(in.T_world_seed, p, p.position_steps));
-    candidates.insert(candidates.end(), more.begin(), more.end());
-    out.hypotheses = static_cast<int>(candidates.size());
-    out.stages.push_back("position-search");
-  }
-  const auto t_coarse = std::chrono::steady_clock::now();
+  StepTimer timer(&out);
+  const std::vector<Candidate> candidates = SearchPoses(coarse, target, in.T_world_seed, p, &out);
+  timer.Step("pose-search");
   std::vector<Candidate> refined;
   for (const auto& c : Distinct(candidates, static_cast<std::size_t>(p.refine_top)))
     refined.push_back(Refine(fine, target, c, p));
   refined = Distinct(refined, 2);
-  spdlog::debug("arref-icp: {} hypotheses, fine refinement {:.1f} ms", candidates.size(),
-                std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t_coarse).count());
   out.stages.push_back("arref-icp");
+  timer.Step("refine");
   if (in.model_expected) {
     PointCloud fitted = fine;
     if (in.robot && p.select_walk) {
       auto walked = RefineForWalk(in, fine, target, refined.front(), &fitted, &out.stages);
       if (!walked.ok()) return walked.status();
       refined.front() = *walked;
+      timer.Step("walk-choice");
     }
     refined.front() = ExactIfCloser(in, fitted, target, refined.front(), &out.stages);
+    timer.Step("surface-choice");
   }
   out.T_world_base = refined.front().T_world_base;
   out.score = refined.front().score;

@@ -167,6 +167,7 @@ Result<RegistrationReport> Register(const PointCloud& model_base, const RobotSid
   report.score = out->score;
   report.margin = out->margin;
   report.hypotheses = out->hypotheses;
+  for (const auto& [step, ms] : out->step_ms) report.method_steps.push_back({step, ms});
   report.stages_run.insert(report.stages_run.end(), out->stages.begin(), out->stages.end());
 
   clock.Start("evaluate", 0.9);

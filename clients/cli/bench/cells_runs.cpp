@@ -75,6 +75,7 @@ void ExecuteOne(Job& job) {
   run.status = ResultStatusName(report->status);
   run.rms_m = report->rms_m, run.add_m = e.add_m, run.translation_m = e.translation_m, run.rotation_deg = e.rotation_deg;
   for (const auto& t : report->timings) run.stage_ms[t.stage] += t.ms;
+  for (const auto& t : report->method_steps) run.stage_ms["register/" + t.stage] += t.ms;
   run.total_ms = report->total_ms();
 }
 

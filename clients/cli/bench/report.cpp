@@ -2,6 +2,7 @@
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdlib>
 #include <filesystem>
@@ -13,6 +14,12 @@
 
 namespace arref::bench {
 namespace {
+
+double Median(std::vector<double> v) {
+  if (v.empty()) return std::nan("");
+  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
+  return v[v.size() / 2];
+}
 
 std::string Num(double v, int digits = 1) { return std::isfinite(v) ? fmt::format("{:.{}f}", v, digits) : "-"; }
 
@@ -149,6 +156,36 @@ std::string Plot(const std::string& dir, const std::string& name, const std::str
   return fmt::format("![{}]({}.png)", name, name);
 }
 
+// Median time of every stage (and of the method's own steps, "register/...") per scenes-experiment
+// method: where a request's time goes. A stage that did not run in a request counts as 0 ms.
+void ProfileTable(std::ostream& md, const Tables& tables, const std::vector<std::string>& methods) {
+  std::vector<std::string> stages;
+  for (const auto& r : tables.runs)
+    if (r.experiment == "scenes")
+      for (const auto& [stage, ms] : r.stage_ms)
+        if (std::find(stages.begin(), stages.end(), stage) == stages.end()) stages.push_back(stage);
+  std::sort(stages.begin(), stages.end());
+  md << "| method | runs |";
+  for (const auto& s : stages) md << " " << s << " |";
+  md << " total |\n|---|---|";
+  for (std::size_t i = 0; i <= stages.size(); ++i) md << "---|";
+  md << "\n";
+  for (const auto& method : methods) {
+    std::map<std::string, std::vector<double>> times;
+    std::size_t n = 0;
+    for (const auto& r : tables.runs) {
+      if (r.experiment != "scenes" || r.method != method || !r.ok) continue;
+      ++n;
+      for (const auto& s : stages) times[s].push_back(r.stage_ms.count(s) ? r.stage_ms.at(s) : 0.0);
+      times["total"].push_back(r.total_ms);
+    }
+    md << "| " << method << " | " << n << " |";
+    for (const auto& s : stages) md << " " << Num(Median(times[s]), 1) << " |";
+    md << " " << Num(Median(times["total"]), 1) << " |\n";
+  }
+  md << "\n";
+}
+
 }  // namespace
 
 Status WriteReport(const Config& config, const Tables& tables, const std::string& command_line) {
@@ -186,6 +223,10 @@ Status WriteReport(const Config& config, const Tables& tables, const std::string
   md << rotation_plot << "\n\n" << translation_plot << "\n\n";
   md << "## Every method on each kind of scene (default parameters, user-like seeds)\n\n";
   MarkdownTable(md, tables.scenes, {"method", "scene"});
+  if (!tables.scenes.empty()) {
+    md << "### Where the time goes: median ms per stage (scenes experiment)\n\n";
+    ProfileTable(md, tables, config.scene_methods);
+  }
   for (const auto& n : tables.notes) md << "- " << n << "\n";
   if (!md) return Status::IoError("error writing " + dir + "/results.md");
   spdlog::info("bench: wrote {}/results.md, runs.csv, table*.csv, scenes.csv and plots", dir);

@@ -48,6 +48,7 @@ struct RegistrationReport {
   std::size_t scene_points = 0;     // registered against
   std::size_t model_points = 0;
   std::vector<StageTime> timings;
+  std::vector<StageTime> method_steps;  // inside the "register" stage, for methods that time theirs
   double total_ms() const;
 };
 

@@ -135,6 +135,7 @@ struct RegistrationOutput {
   double score = -1.0;
   double margin = -1.0;
   int hypotheses = 0;
+  std::vector<std::pair<std::string, double>> step_ms;  // the method's own steps, in order (profiling)
 };
 
 // What a method gets: model points in the robot base frame, scene points in world, the seed.

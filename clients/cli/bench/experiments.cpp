@@ -61,6 +61,17 @@ Run Label(const std::string& experiment, const std::string& method, const std::s
   return r;
 }
 
+// A registration of the cell from its s-th user-like seed, with the method's defaults.
+Job SeedJob(const std::string& experiment, const std::string& method, const std::string& size,
+            const std::string& params, const Cell& cell, int s) {
+  Job job;
+  job.cell = &cell;
+  job.T_world_seed = cell.sim.seeds[s];
+  job.options = BaseOptions(method, size);
+  job.run = Label(experiment, method, size, params, cell, s);
+  return job;
+}
+
 std::vector<const Run*> Select(const std::vector<Run>& runs, const std::function<bool(const Run&)>& keep) {
   std::vector<const Run*> out;
   for (const auto& r : runs)
@@ -84,13 +95,9 @@ Status SweepSize(const RobotModel& robot, const Config& config, const std::strin
     for (const auto& set : sets)
       for (const auto& cell : *cells)
         for (int s = 0; s < static_cast<int>(cell.sim.seeds.size()); ++s) {
-          Job job;
-          job.cell = &cell;
-          job.T_world_seed = cell.sim.seeds[s];
-          job.options = BaseOptions(method, size);
+          Job job = SeedJob("sweep", method, size, set.label, cell, s);
           job.options.icp = set.icp;
           job.options.mls = set.mls;
-          job.run = Label("sweep", method, size, set.label, cell, s);
           jobs.push_back(job);
         }
   spdlog::info("bench: sweep, {} configuration: {} runs", size, jobs.size());
@@ -202,12 +209,7 @@ Status ScenesExperiment(const RobotModel& robot, const Config& config, Tables* t
   for (const auto& method : config.scene_methods)
     for (const auto& cell : *cells)
       for (int s = 0; s < static_cast<int>(cell.sim.seeds.size()); ++s) {
-        Job job;
-        job.cell = &cell;
-        job.T_world_seed = cell.sim.seeds[s];
-        job.options = BaseOptions(method, size);
-        job.run = Label("scenes", method, size, "defaults", cell, s);
-        jobs.push_back(job);
+        jobs.push_back(SeedJob("scenes", method, size, "defaults", cell, s));
       }
   spdlog::info("bench: methods on each kind of scene: {} runs", jobs.size());
   const std::vector<Run> runs = Execute(jobs, config.jobs);

@@ -88,11 +88,17 @@ std::vector<Candidate> Distinct(std::vector<Candidate> all, std::size_t count) {
   return out;
 }
 
-Candidate Refine(const PointCloud& fine, const TargetCloud& target, const Candidate& start, const ArrefIcpParams& p) {
+// Correspondence distances of the refinement: from capturing a coarse pose's basin down to the
+// noise of a headset mesh. A pose already refined once is only polished (the last two).
+const std::vector<double> kRefineLevels = {0.08, 0.04, 0.02, 0.012};
+const std::vector<double> kPolishLevels = {0.02, 0.012};
+
+Candidate Refine(const PointCloud& fine, const TargetCloud& target, const Candidate& start, const ArrefIcpParams& p,
+                 const std::vector<double>& levels = kRefineLevels) {
   IcpSettings s;
   s.yaw_only = true;
   s.max_iterations = 15;
-  IcpStats st = AlignCoarseToFine(fine, target, start.T_world_base, {0.08, 0.04, 0.02, 0.012}, s);
+  IcpStats st = AlignCoarseToFine(fine, target, start.T_world_base, levels, s);
   int iterations = start.iterations + st.iterations;
   if (p.final_six_dof) {
     s.yaw_only = false;
@@ -130,7 +136,7 @@ Result<Candidate> RefineForWalk(const MethodInput& in, const PointCloud& all_rou
   if (best_walk < 0) return best;
   *fitted = std::move(surfaces[best_walk]);
   stages->push_back(fmt::format("walk-{}", best_walk));
-  Candidate c = Refine(*fitted, target, {best.T_world_base, best.score, 0}, p);
+  Candidate c = Refine(*fitted, target, {best.T_world_base, best.score, 0}, p, kPolishLevels);
   return Candidate{c.T_world_base, best.score, best.iterations + c.iterations};
 }
 
@@ -141,7 +147,7 @@ Candidate ExactIfCloser(const MethodInput& in, const PointCloud& expected_fine, 
                         const Candidate& best, std::vector<std::string>* stages) {
   const ArrefIcpParams& p = in.options.arref_icp;
   const PointCloud exact_fine = Thin(VisiblePoints(in.model_base), p.fine_points);
-  Candidate exact = Refine(exact_fine, target, {best.T_world_base, best.score, 0}, p);
+  Candidate exact = Refine(exact_fine, target, {best.T_world_base, best.score, 0}, p, kPolishLevels);
   const double d_expected = MedianPlaneDistance(expected_fine, target, best.T_world_base, 0.03, 0.5);
   const double d_exact = MedianPlaneDistance(exact_fine, target, exact.T_world_base, 0.03, 0.5);
   spdlog::debug("arref-icp: median plane distance {:.1f} mm expected surface, {:.1f} mm exact", d_expected * 1e3,

@@ -93,14 +93,22 @@ const char* ResultStatusName(ResultStatus status) {
 
 namespace {
 
-constexpr double kMinExpectedVoxel = 0.005, kMaxExpectedVoxel = 0.15;
+// Below 2 cm a fused shell lies within a few millimetres of the surface: measured on the big
+// configuration (1 cm voxels, vendor KR5), the expected surface gave a median ADD of 6.5 mm and
+// the exact one 5.9 mm, while the expected surfaces took 6 s to build. Above 15 cm a mesh is
+// too coarse for the fusion to say anything.
+constexpr double kMinExpectedVoxel = 0.02, kMaxExpectedVoxel = 0.15;
 
-// The robot as the headset meshes it, at the voxel of this scene; null when the mesh's voxel is
-// out of the fusion's range (then the exact surface is fitted).
+// The robot as the headset meshes it, at the voxel of this scene; null when the mesh is too fine
+// for it to matter or too coarse to model (then the exact surface is fitted).
 Result<std::shared_ptr<const PointCloud>> ExpectedSurface(const RobotSide& robot, double voxel) {
-  if (!(voxel >= kMinExpectedVoxel && voxel <= kMaxExpectedVoxel)) {
-    spdlog::warn("scene mesh voxel {:.4f} m is outside [{}, {}] m: fitting the exact robot surface", voxel,
-                 kMinExpectedVoxel, kMaxExpectedVoxel);
+  if (voxel < kMinExpectedVoxel) {
+    spdlog::debug("scene mesh voxel {:.4f} m: fine enough to fit the exact robot surface", voxel);
+    return std::shared_ptr<const PointCloud>();
+  }
+  if (voxel > kMaxExpectedVoxel) {
+    spdlog::warn("scene mesh voxel {:.3f} m is coarser than {} m: fitting the exact robot surface", voxel,
+                 kMaxExpectedVoxel);
     return std::shared_ptr<const PointCloud>();
   }
   return robot.Expected(voxel);

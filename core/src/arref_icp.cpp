@@ -20,6 +20,7 @@
 #include "arref/model_visibility.h"
 #include "arref/pipeline.h"
 #include "arref/registration.h"
+#include "step_timer.h"
 
 namespace arref {
 namespace {
@@ -177,21 +178,6 @@ std::vector<Candidate> SearchPoses(const PointCloud& coarse, const TargetCloud& 
   out->hypotheses = static_cast<int>(candidates.size());
   return candidates;
 }
-
-// Appends the time since the last call (or construction) to out under a step name.
-class StepTimer {
- public:
-  explicit StepTimer(RegistrationOutput* out) : out_(out) {}
-  void Step(const char* name) {
-    const auto now = std::chrono::steady_clock::now();
-    out_->step_ms.emplace_back(name, std::chrono::duration<double, std::milli>(now - last_).count());
-    last_ = now;
-  }
-
- private:
-  RegistrationOutput* out_;
-  std::chrono::steady_clock::time_point last_ = std::chrono::steady_clock::now();
-};
 
 }  // namespace
 

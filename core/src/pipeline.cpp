@@ -70,16 +70,21 @@ double RegistrationReport::total_ms() const {
   return total;
 }
 
+Result<PointCloud> SamplePosedRobot(const TriangleMesh& mesh_base, const std::string& name, std::size_t samples,
+                                    std::uint64_t seed) {
+  if (mesh_base.empty()) return Status::FailedPrecondition("robot '" + name + "' has no geometry to register");
+  PointCloud cloud = SampleSurface(mesh_base, samples, seed);
+  auto visibility = ModelVisibility(mesh_base, cloud);
+  if (!visibility.ok()) return visibility.status().WithContext("robot '" + name + "'");
+  cloud.visibility = std::move(*visibility);
+  return cloud;
+}
+
 Result<PointCloud> SampleRobot(const RobotModel& robot, const JointValues& joints, std::size_t samples,
                                std::uint64_t seed) {
   auto mesh = robot.PosedMesh(joints);
   if (!mesh.ok()) return mesh.status();
-  if (mesh->empty()) return Status::FailedPrecondition("robot '" + robot.name() + "' has no geometry to register");
-  PointCloud cloud = SampleSurface(*mesh, samples, seed);
-  auto visibility = ModelVisibility(*mesh, cloud);
-  if (!visibility.ok()) return visibility.status().WithContext("robot '" + robot.name() + "'");
-  cloud.visibility = std::move(*visibility);
-  return cloud;
+  return SamplePosedRobot(*mesh, robot.name(), samples, seed);
 }
 
 const char* ResultStatusName(ResultStatus status) {

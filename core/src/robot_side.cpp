@@ -19,7 +19,7 @@ Result<std::shared_ptr<const RobotSide>> RobotSide::Create(const RobotModel& rob
                                                            std::size_t samples, std::uint64_t seed) {
   auto mesh = robot.PosedMesh(joints);
   if (!mesh.ok()) return mesh.status();
-  auto cloud = SampleRobot(robot, joints, samples, seed);
+  auto cloud = SamplePosedRobot(*mesh, robot.name(), samples, seed);
   if (!cloud.ok()) return cloud.status();
   return std::shared_ptr<const RobotSide>(new RobotSide(std::move(*mesh), std::move(*cloud), seed));
 }

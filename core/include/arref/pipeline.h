@@ -59,6 +59,9 @@ using ProgressFn = std::function<void(std::string_view stage, double fraction)>;
 // of each point (model_visibility.h). Model side: reusable across requests.
 Result<PointCloud> SampleRobot(const RobotModel& robot, const JointValues& joints, std::size_t samples,
                                std::uint64_t seed);
+// The same from the robot's already posed mesh (base frame); name is for error messages.
+Result<PointCloud> SamplePosedRobot(const TriangleMesh& mesh_base, const std::string& name, std::size_t samples,
+                                    std::uint64_t seed);
 
 // The robot side of registrations, built once per robot and joint state and shared by
 // requests (the server caches it): the samples of SampleRobot, and the robot as a headset

@@ -1,10 +1,12 @@
 // arref-icp: robust initialisation by a gravity-aligned 4-DoF search around the seed, then
-// point-to-plane ICP on the model points a person can see.
+// point-to-plane ICP of the robot as the headset would mesh it (model_reconstruction.h), or of
+// the model points a person can see when no such surface is given.
 //
 // Why: the headset's world is gravity aligned and robots stand upright, so T_world_base is
 // x, y, z and yaw up to small tilt (domain notes, "Coordinate frames"). Local ICP falls into a
 // wrong basin beyond ~45 degrees of yaw or ~0.3 m of position error, so every yaw is tried;
-// unseen model surfaces pull ICP 2-3 cm off, so only visible ones are fitted.
+// unseen model surfaces pull ICP 2-3 cm off, and the fused mesh's shell another 4-10 mm, so
+// the surface fitted is the one a headset would produce (docs/engine.md).
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 

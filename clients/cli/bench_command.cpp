@@ -28,6 +28,7 @@ struct BenchArgs {
   int scene_seeds = 3;
   bool seed_any_yaw = false;
   bool walk_any_side = false;
+  double walk_arc_deg = 0.0;
   double seed_max_offset = 0.0;
   std::string only;  // comma-separated subset of sweep, perturb, scenes
   std::string command_line;
@@ -60,6 +61,7 @@ int Run(const BenchArgs& args) {
   config.seed_noise.any_yaw = args.seed_any_yaw;
   config.seed_noise.max_horizontal_m = args.seed_max_offset;
   config.walk_any_side = args.walk_any_side;
+  config.walk_arc_deg = args.walk_arc_deg;
   std::error_code ec;
   std::filesystem::create_directories(config.out_dir, ec);
   if (ec) return Fail(Status::IoError("--out " + config.out_dir + ": " + ec.message()));
@@ -112,6 +114,9 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
       ->check(CLI::Range(0.0, 3.0));
   cmd->add_flag("--walk-any-side", args->walk_any_side,
                 "Scenes experiment: each cell's robot turned at random, so the user maps any side of it (default: its front)");
+  cmd->add_option("--walk-arc", args->walk_arc_deg,
+                  "Scenes experiment: the arc the simulated user walks round the robot, deg (default 220)")
+      ->check(CLI::Range(30.0, 360.0));
   cmd->add_option("--only", args->only, "Run only these experiments: sweep, perturb, scenes (comma-separated)");
   cmd->callback([args, exit_code, cmd] {
     args->command_line = "arref bench";

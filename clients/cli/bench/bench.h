@@ -32,6 +32,7 @@ struct Config {
   int scene_seeds = 3;  // per cell
   sim::SeedNoise seed_noise;
   bool walk_any_side = false;  // each cell's robot turned at random: the user maps any side of it
+  double walk_arc_deg = 0.0;   // > 0: the arc the simulated user walks (default: the simulator's)
 };
 
 // A simulated cell with everything a run needs.
@@ -71,7 +72,8 @@ struct Job {
 
 Result<std::vector<Cell>> MakeCells(const RobotModel& robot, const std::vector<std::string>& kinds, const std::string& size,
                                     int cells_per_kind, int seeds_per_cell, std::uint64_t rng_seed,
-                                    const sim::SeedNoise& seed_noise = {}, bool walk_any_side = false);
+                                    const sim::SeedNoise& seed_noise = {}, bool walk_any_side = false,
+                                    double walk_arc_deg = 0.0);
 // Runs every job (in parallel when jobs > 1) and returns their runs in order.
 std::vector<Run> Execute(std::vector<Job>& jobs, int parallel_jobs);
 

@@ -92,7 +92,7 @@ double Quantile(std::vector<double> v, double q) {
 
 Result<std::vector<Cell>> MakeCells(const RobotModel& robot, const std::vector<std::string>& kinds, const std::string& size,
                                     int cells_per_kind, int seeds_per_cell, std::uint64_t rng_seed,
-                                    const sim::SeedNoise& seed_noise, bool walk_any_side) {
+                                    const sim::SeedNoise& seed_noise, bool walk_any_side, double walk_arc_deg) {
   std::vector<Cell> cells;
   const RegistrationOptions defaults;
   for (const auto& kind : kinds) {
@@ -106,6 +106,7 @@ Result<std::vector<Cell>> MakeCells(const RobotModel& robot, const std::vector<s
       options->cell.joints = RandomJoints(robot, rng);
       options->seed_count = seeds_per_cell;
       options->seed_noise = seed_noise;
+      if (walk_arc_deg > 0) options->scan.path_arc_deg = walk_arc_deg;
       if (walk_any_side) options->cell.base_yaw_deg = std::uniform_real_distribution<double>(-180.0, 180.0)(rng);
       auto sim = sim::SimulateCell(robot, *options, seed);
       if (!sim.ok()) return sim.status().WithContext("bench cell " + kind + " " + std::to_string(i));

@@ -202,6 +202,10 @@ void AddRegisterCommand(CLI::App& app, int* exit_code) {
   cmd->add_flag("--expected-surface,!--exact-surface", o.arref_icp.expected_surface,
                 "arref-icp: fit the exact robot surface (visible parts) instead of the robot as the headset would mesh it")
       ->default_str("expected");
+  cmd->add_flag("--context,!--no-context", o.arref_icp.in_context,
+                "arref-icp: skip the refit with the objects mapped round the robot (faster; a table near the robot then "
+                "pulls the fit a few mm)")
+      ->default_str("context");
   cmd->add_option("--expected-voxel", o.arref_icp.expected_voxel_m,
                   "arref-icp: voxel of the headset mesh, m (default: the cropped mesh's median edge length)");
   cmd->add_option("--sample-seed", o.sample_seed, "Seed of the surface sampling")->capture_default_str();

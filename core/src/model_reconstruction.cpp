@@ -1,6 +1,7 @@
 #include "arref/model_reconstruction.h"
 
 #include <fmt/format.h>
+#include <spdlog/spdlog.h>
 
 #include <algorithm>
 #include <cmath>
@@ -26,6 +27,25 @@ Status CheckOptions(const ReconstructionOptions& o) {
   return Status::Ok();
 }
 
+// Per pixel the nearer of two renderings of the same view (a scene in two ray casters).
+void NearerOf(const RangeImage& other, const std::vector<float>& other_incidence, RangeImage* range,
+              std::vector<float>* incidence) {
+  for (std::size_t i = 0; i < range->size(); ++i)
+    if (other[i] > 0 && ((*range)[i] <= 0 || other[i] < (*range)[i]))
+      (*range)[i] = other[i], (*incidence)[i] = other_incidence[i];
+}
+
+Vec3f Centroid(const TriangleMesh& mesh, const Triangle& t) {
+  return (mesh.vertices[t[0]] + mesh.vertices[t[1]] + mesh.vertices[t[2]]) / 3.0f;
+}
+
+std::vector<Vec3f> Centroids(const TriangleMesh& mesh) {
+  std::vector<Vec3f> out;
+  out.reserve(mesh.triangles.size());
+  for (const Triangle& t : mesh.triangles) out.push_back(Centroid(mesh, t));
+  return out;
+}
+
 }  // namespace
 
 struct ExpectedSurfaceMaker::Parts {
@@ -49,7 +69,7 @@ Result<ExpectedSurfaceMaker> ExpectedSurfaceMaker::Create(const TriangleMesh& ro
             seed}));
 }
 
-Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const ReconstructionOptions& o) const {
+Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const ReconstructionOptions& o, const RayCaster* context) const {
   const Vec3 centre = ((parts_->box.min + parts_->box.max) / 2).cast<double>();
   TsdfOptions tsdf;
   tsdf.voxel_m = o.voxel_m;
@@ -68,33 +88,70 @@ Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const ReconstructionOptions& o) 
     const double azimuth = (o.arc_center_deg + first + step * a) * std::numbers::pi / 180;
     const Iso3 T_base_camera =
         LookAt(Vec3(o.distance_m * std::cos(azimuth), o.distance_m * std::sin(azimuth), o.eye_height_m), centre);
-    std::vector<float> incidence;
-    const RangeImage range = parts_->caster.Render(camera, T_base_camera, max_range, &incidence);
+    std::vector<float> incidence, context_incidence;
+    RangeImage range = parts_->caster.Render(camera, T_base_camera, max_range, &incidence);
+    if (context) NearerOf(context->Render(camera, T_base_camera, max_range, &context_incidence), context_incidence,
+                          &range, &incidence);
     ARREF_RETURN_IF_ERROR(volume.Integrate(camera, T_base_camera, range, incidence));
   }
   return volume.ExtractMesh();
 }
 
-// The fused triangles that belong to the robot: nearer to its surface than to the floor.
-TriangleMesh ExpectedSurfaceMaker::RobotPart(const TriangleMesh& fused) const {
+// The fused triangles that belong to the robot: nearer to its surface than to the floor and
+// to the other objects.
+TriangleMesh ExpectedSurfaceMaker::RobotPart(const TriangleMesh& fused, const PointIndex* context) const {
   const float floor_z = std::min(0.0f, parts_->box.min.z());
   TriangleMesh out;
   out.vertices = fused.vertices;
   for (const Triangle& t : fused.triangles) {
-    const Vec3f c = (fused.vertices[t[0]] + fused.vertices[t[1]] + fused.vertices[t[2]]) / 3.0f;
-    const float to_floor = c.z() - floor_z;
+    const Vec3f c = Centroid(fused, t);
+    float limit_sq = (c.z() - floor_z) * (c.z() - floor_z);
     std::uint32_t i;
     float sq;
-    if (parts_->robot.NearestWithin(c, to_floor * to_floor, &i, &sq)) out.triangles.push_back(t);
+    if (context && context->NearestWithin(c, limit_sq, &i, &sq)) limit_sq = sq;
+    if (parts_->robot.NearestWithin(c, limit_sq, &i, &sq)) out.triangles.push_back(t);
   }
   return out;
 }
 
 Result<PointCloud> ExpectedSurfaceMaker::Make(const ReconstructionOptions& options, std::size_t samples) const {
+  return Sample(options, nullptr, nullptr, samples);
+}
+
+Result<PointCloud> ExpectedSurfaceMaker::MakeInContext(const ReconstructionOptions& options, std::size_t samples,
+                                                       const TriangleMesh& scene_world, const Iso3& T_world_base,
+                                                       double clearance_m) const {
+  const TriangleMesh context_base = Context(scene_world, T_world_base, clearance_m);
+  if (context_base.empty()) return Make(options, samples);
+  // The robot's caster is kept; the objects get their own, and each pixel sees the nearer.
+  auto caster = RayCaster::Create(context_base);
+  if (!caster.ok()) return caster.status().WithContext("expected surface in context");
+  const PointIndex context(Centroids(context_base));
+  return Sample(options, &*caster, &context, samples);
+}
+
+TriangleMesh ExpectedSurfaceMaker::Context(const TriangleMesh& scene_world, const Iso3& T_world_base,
+                                           double clearance_m) const {
+  TriangleMesh base;
+  base.Append(scene_world, T_world_base.inverse());
+  TriangleMesh out;
+  out.vertices = base.vertices;
+  const float clear_sq = static_cast<float>(clearance_m * clearance_m);
+  for (const Triangle& t : base.triangles) {
+    const Vec3f c = Centroid(base, t);
+    std::uint32_t i;
+    float sq;
+    if (!parts_->robot.NearestWithin(c, clear_sq, &i, &sq)) out.triangles.push_back(t);
+  }
+  return out;
+}
+
+Result<PointCloud> ExpectedSurfaceMaker::Sample(const ReconstructionOptions& options, const RayCaster* context_caster,
+                                                const PointIndex* context, std::size_t samples) const {
   ARREF_RETURN_IF_ERROR(CheckOptions(options));
-  auto fused = Fuse(options);
+  auto fused = Fuse(options, context_caster);
   if (!fused.ok()) return fused.status().WithContext("expected surface");
-  const TriangleMesh robot = RobotPart(*fused);
+  const TriangleMesh robot = RobotPart(*fused, context);
   if (robot.empty())
     return Status::FailedPrecondition(
         fmt::format("expected surface: nothing of the robot survives fusion at {} m voxels", options.voxel_m));

@@ -172,7 +172,7 @@ Result<RegistrationReport> Register(const PointCloud& model_base, const RobotSid
   // One k-d tree of the scene serves the method (when it takes one) and the evaluation.
   const TargetCloud target(scene);
   clock.Start("register", 0.3);
-  auto out = MethodInfoOf(options.method).run(MethodInput{model_base, scene, T_world_seed, options, &target, expected.get(), robot, voxel});
+  auto out = MethodInfoOf(options.method).run(MethodInput{model_base, scene, T_world_seed, options, &target, expected.get(), robot, voxel, &cropped});
   if (!out.ok()) return out.status().WithContext(report.method);
   report.T_world_base = out->T_world_base;
   report.iterations = out->iterations;

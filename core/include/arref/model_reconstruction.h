@@ -17,6 +17,9 @@
 
 namespace arref {
 
+class RayCaster;
+class PointIndex;
+
 struct ReconstructionOptions {
   double voxel_m = 0.035;         // the headset mesh's voxel (its median edge length)
   double truncation_voxels = 3.0;
@@ -44,12 +47,23 @@ class ExpectedSurfaceMaker {
   ~ExpectedSurfaceMaker();
   // As ExpectedRobotSurface. Const and thread-safe.
   Result<PointCloud> Make(const ReconstructionOptions& options, std::size_t samples) const;
+  // The same with the other objects the headset mapped round the robot (`context_base`: a
+  // table, walls, clutter, in the base frame): they hide parts of the robot from the eyes and
+  // fuse with it, as they did in the headset's mesh.
+  // The context is taken from the headset's mesh with the robot at T_world_base: the triangles
+  // farther than clearance_m from the robot's exact surface.
+  Result<PointCloud> MakeInContext(const ReconstructionOptions& options, std::size_t samples,
+                                   const TriangleMesh& scene_world, const Iso3& T_world_base,
+                                   double clearance_m) const;
 
  private:
   struct Parts;
   explicit ExpectedSurfaceMaker(std::unique_ptr<Parts> parts);
-  Result<TriangleMesh> Fuse(const ReconstructionOptions& options) const;
-  TriangleMesh RobotPart(const TriangleMesh& fused) const;
+  Result<TriangleMesh> Fuse(const ReconstructionOptions& options, const RayCaster* context) const;
+  TriangleMesh Context(const TriangleMesh& scene_world, const Iso3& T_world_base, double clearance_m) const;
+  TriangleMesh RobotPart(const TriangleMesh& fused, const PointIndex* context) const;
+  Result<PointCloud> Sample(const ReconstructionOptions& options, const RayCaster* context_caster,
+                            const PointIndex* context, std::size_t samples) const;
   std::unique_ptr<Parts> parts_;
 };
 

@@ -75,9 +75,14 @@ class RobotSide {
   // [0, kWalks): a 220 degree arc centred at k * 360 / kWalks degrees.
   static constexpr int kWalks = 8;
   Result<std::shared_ptr<const PointCloud>> Expected(double voxel_m, int walk = -1) const;
+  // The same with the objects mapped round the robot, from the headset's mesh with the robot
+  // at T_world_base (ExpectedSurfaceMaker::MakeInContext). Made anew on every call.
+  Result<PointCloud> ExpectedInContext(double voxel_m, int walk, const TriangleMesh& scene_world,
+                                       const Iso3& T_world_base) const;
 
  private:
   RobotSide(TriangleMesh mesh_base, PointCloud samples, std::uint64_t seed);
+  Result<std::shared_ptr<const ExpectedSurfaceMaker>> Maker() const;  // under mutex_
   TriangleMesh mesh_base_;
   PointCloud samples_;
   std::uint64_t seed_;

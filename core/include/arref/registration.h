@@ -40,6 +40,7 @@ struct ArrefIcpParams {
   bool expected_surface = true;
   double expected_voxel_m = 0.0;   // the headset mesh's voxel; 0: the cropped scene's median edge length
   bool select_walk = true;         // also try surfaces of one-sided walks round the robot (arref_icp.cpp)
+  bool in_context = true;          // refit with the objects mapped round the robot fused in (arref_icp.cpp)
 };
 
 // Turns fit figures into a status (calibrated on simulated cells, see docs/engine.md). The
@@ -102,7 +103,7 @@ struct FpfhRansacParams {
 
 // One registry entry per value; the registry (methods.cpp) says which are available.
 enum class Method {
-  kPclIcp, kPclIcpPlane, kPclGicp, kSuper4pcs, kPcl4pcs, kPclK4pcs, kFpfhRansac, kArrefIcp, kArrefIcpExact,
+  kPclIcp, kPclIcpPlane, kPclGicp, kSuper4pcs, kPcl4pcs, kPclK4pcs, kFpfhRansac, kArrefIcp, kArrefIcpFast, kArrefIcpExact,
   kOpen3dIcp, kOpen3dIcpPlane,  // only when built with Open3D
 };
 
@@ -153,6 +154,7 @@ struct MethodInput {
   const PointCloud* model_expected = nullptr;
   const RobotSide* robot = nullptr;
   double voxel_m = 0.0;
+  const TriangleMesh* scene_mesh_world = nullptr;  // the cropped headset mesh the scene was sampled from
 };
 using MethodFn = std::function<Result<RegistrationOutput>(const MethodInput&)>;
 

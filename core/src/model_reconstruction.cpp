@@ -39,13 +39,6 @@ Vec3f Centroid(const TriangleMesh& mesh, const Triangle& t) {
   return (mesh.vertices[t[0]] + mesh.vertices[t[1]] + mesh.vertices[t[2]]) / 3.0f;
 }
 
-std::vector<Vec3f> Centroids(const TriangleMesh& mesh) {
-  std::vector<Vec3f> out;
-  out.reserve(mesh.triangles.size());
-  for (const Triangle& t : mesh.triangles) out.push_back(Centroid(mesh, t));
-  return out;
-}
-
 }  // namespace
 
 struct ExpectedSurfaceMaker::Parts {
@@ -69,13 +62,19 @@ Result<ExpectedSurfaceMaker> ExpectedSurfaceMaker::Create(const TriangleMesh& ro
             seed}));
 }
 
-Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const ReconstructionOptions& o, const RayCaster* context) const {
-  const Vec3 centre = ((parts_->box.min + parts_->box.max) / 2).cast<double>();
+// The TSDF round the robot: its bounding sphere and the truncation band beyond it.
+TsdfOptions ExpectedSurfaceMaker::Volume(const ReconstructionOptions& o) const {
   TsdfOptions tsdf;
   tsdf.voxel_m = o.voxel_m;
   tsdf.truncation_m = std::max(o.truncation_voxels * o.voxel_m, o.min_truncation_m);
-  tsdf.crop_center = centre;
+  tsdf.crop_center = ((parts_->box.min + parts_->box.max) / 2).cast<double>();
   tsdf.crop_radius_m = 0.5 * (parts_->box.max - parts_->box.min).norm() + 2 * tsdf.truncation_m;
+  return tsdf;
+}
+
+Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const ReconstructionOptions& o, const RayCaster* context) const {
+  const TsdfOptions tsdf = Volume(o);
+  const Vec3 centre = tsdf.crop_center;
   TsdfVolume volume(tsdf);
   const double image_width_m = 2 * o.distance_m * std::tan(o.fov_horizontal_deg * std::numbers::pi / 360);
   const int width = std::clamp(static_cast<int>(std::ceil(image_width_m / o.voxel_m * o.pixels_per_voxel)), 64, 2048);
@@ -126,8 +125,27 @@ Result<PointCloud> ExpectedSurfaceMaker::MakeInContext(const ReconstructionOptio
   // The robot's caster is kept; the objects get their own, and each pixel sees the nearer.
   auto caster = RayCaster::Create(context_base);
   if (!caster.ok()) return caster.status().WithContext("expected surface in context");
-  const PointIndex context(Centroids(context_base));
+  std::vector<Vec3f> near = FusedPart(context_base, options);
+  if (near.empty()) return Sample(options, &*caster, nullptr, samples);  // objects that only hide the robot
+  const PointIndex context(std::move(near));
   return Sample(options, &*caster, &context, samples);
+}
+
+// Points on the objects inside the fused volume, where they can border the robot's shell: two
+// per voxel face, so big triangles are covered as well as a headset's small ones.
+std::vector<Vec3f> ExpectedSurfaceMaker::FusedPart(const TriangleMesh& context_base,
+                                                   const ReconstructionOptions& options) const {
+  const TsdfOptions volume = Volume(options);
+  const Vec3f centre = volume.crop_center.cast<float>();
+  const auto radius = static_cast<float>(volume.crop_radius_m + options.voxel_m);
+  TriangleMesh inside;
+  inside.vertices = context_base.vertices;
+  for (const Triangle& t : context_base.triangles)
+    if ((Centroid(context_base, t) - centre).norm() < radius) inside.triangles.push_back(t);
+  if (inside.empty()) return {};
+  const double per_m2 = 2 / (options.voxel_m * options.voxel_m);
+  const auto count = static_cast<std::size_t>(std::clamp(per_m2 * inside.SurfaceArea(), 1.0, 200000.0));
+  return SampleSurface(inside, count, parts_->seed).points;
 }
 
 TriangleMesh ExpectedSurfaceMaker::Context(const TriangleMesh& scene_world, const Iso3& T_world_base,

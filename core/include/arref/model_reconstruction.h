@@ -19,6 +19,7 @@ namespace arref {
 
 class RayCaster;
 class PointIndex;
+struct TsdfOptions;
 
 struct ReconstructionOptions {
   double voxel_m = 0.035;         // the headset mesh's voxel (its median edge length)
@@ -60,7 +61,9 @@ class ExpectedSurfaceMaker {
   struct Parts;
   explicit ExpectedSurfaceMaker(std::unique_ptr<Parts> parts);
   Result<TriangleMesh> Fuse(const ReconstructionOptions& options, const RayCaster* context) const;
+  TsdfOptions Volume(const ReconstructionOptions& options) const;
   TriangleMesh Context(const TriangleMesh& scene_world, const Iso3& T_world_base, double clearance_m) const;
+  std::vector<Vec3f> FusedPart(const TriangleMesh& context_base, const ReconstructionOptions& options) const;
   TriangleMesh RobotPart(const TriangleMesh& fused, const PointIndex* context) const;
   Result<PointCloud> Sample(const ReconstructionOptions& options, const RayCaster* context_caster,
                             const PointIndex* context, std::size_t samples) const;

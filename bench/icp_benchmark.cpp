@@ -11,6 +11,7 @@
 #include "arref/fast_icp.h"
 #include "arref/model_visibility.h"
 #include "arref/pipeline.h"
+#include "arref/sampling.h"
 #include "arref/sim/cell_simulator.h"
 #include "arref/spatial_mesh.h"
 
@@ -50,7 +51,8 @@ Iso3 NearTruth() { return MakeYawPose(0.01, 0, 0, 0) * Cell().T_world_base; }
 
 void BM_ArrefIteration(benchmark::State& state) {
   tbb::global_control threads(tbb::global_control::max_allowed_parallelism, static_cast<std::size_t>(state.range(1)));
-  const PointCloud source = FirstN(Cell().model, static_cast<std::size_t>(state.range(0)));
+  // In the order arref-icp queries them (SpatiallyOrdered, as its Thin does).
+  const PointCloud source = SpatiallyOrdered(FirstN(Cell().model, static_cast<std::size_t>(state.range(0))));
   const TargetCloud target(Cell().scene);
   IcpSettings s;
   s.max_iterations = 1;

@@ -21,6 +21,7 @@
 #include "arref/model_visibility.h"
 #include "arref/pipeline.h"
 #include "arref/registration.h"
+#include "arref/sampling.h"
 #include "step_timer.h"
 
 namespace arref {
@@ -32,12 +33,13 @@ struct Candidate {
   int iterations = 0;
 };
 
-// Every k-th point so that at most `limit` remain (deterministic, spread over the model).
+// Every k-th point so that at most `limit` remain (deterministic, spread over the model), in
+// spatial order for the ICP's nearest-neighbour queries.
 PointCloud Thin(const PointCloud& cloud, std::size_t limit) {
   std::vector<std::uint32_t> keep;
   const std::size_t stride = std::max<std::size_t>(1, (cloud.size() + limit - 1) / std::max<std::size_t>(1, limit));
   for (std::size_t i = 0; i < cloud.size(); i += stride) keep.push_back(static_cast<std::uint32_t>(i));
-  return cloud.Subset(keep);
+  return SpatiallyOrdered(cloud.Subset(keep));
 }
 
 double Yaw(const Iso3& T) { return std::atan2(T.linear()(1, 0), T.linear()(0, 0)); }

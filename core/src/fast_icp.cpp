@@ -41,7 +41,8 @@ Normal Accumulate(const PointCloud& source, const TargetCloud& target, const Eig
     const Vec3f& n = target.normals()[j];
     if ((R * source.normals[i]).dot(n) < s.min_normal_cos) continue;
     const double r = n.dot(p - target.index().points()[j]);
-    const double w = std::pow(scale_sq / (scale_sq + r * r), 2);
+    const double k = scale_sq / (scale_sq + r * r);
+    const double w = k * k;
     Vec6 J;
     J.head<3>() = n.cast<double>();
     J.tail<3>() = p.cast<double>().cross(n.cast<double>());

@@ -1,7 +1,9 @@
 #include "arref/sampling.h"
 
 #include <algorithm>
+#include <numeric>
 #include <random>
+#include <tuple>
 #include <unordered_map>
 
 namespace arref {
@@ -41,6 +43,18 @@ PointCloud SampleSurface(const TriangleMesh& mesh, std::size_t n, std::uint64_t 
     cloud.normals.push_back(normals[i]);
   }
   return cloud;
+}
+
+PointCloud SpatiallyOrdered(const PointCloud& cloud, double cell_m) {
+  const float inv = static_cast<float>(1.0 / cell_m);
+  auto cell = [&](std::uint32_t i) {
+    const Eigen::Vector3i k = (cloud.points[i] * inv).array().floor().cast<int>();
+    return std::tuple(k.z(), k.y(), k.x());
+  };
+  std::vector<std::uint32_t> order(cloud.size());
+  std::iota(order.begin(), order.end(), 0u);
+  std::stable_sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) { return cell(a) < cell(b); });
+  return cloud.Subset(order);
 }
 
 PointCloud VoxelDownsample(const PointCloud& cloud, double leaf_m) {

@@ -12,6 +12,11 @@ namespace arref {
 // triangle. Deterministic for a given seed. Empty mesh or n == 0 gives an empty cloud.
 PointCloud SampleSurface(const TriangleMesh& mesh, std::size_t n, std::uint64_t seed);
 
+// The same points reordered cell by cell (cells of cell_m, z-major), so that consecutive points
+// lie close together. Nearest-neighbour queries in that order reuse the k-d tree nodes in cache:
+// an ICP iteration over 5,000 points took about 10 % less time (bench/icp_benchmark.cpp).
+PointCloud SpatiallyOrdered(const PointCloud& cloud, double cell_m = 0.1);
+
 // One point per occupied voxel (the centroid of its points; normals averaged).
 PointCloud VoxelDownsample(const PointCloud& cloud, double leaf_m);
 

@@ -107,14 +107,26 @@ TEST_F(CliTest, DefaultMethodFitsTheExpectedHeadsetSurface) {
       ASSERT_EQ(r.exit_code, 0) << r.err;
       const auto j = nlohmann::json::parse(r.out);
       EXPECT_EQ(j["status"], "OK") << j.value("status_reason", "");
-      EXPECT_EQ(j["stages_run"].front(), "expected-surface");
-      EXPECT_EQ(j["stages_run"].back(), "fitted-expected-surface") << j["stages_run"].dump();
+      const auto& stages = j["stages_run"];
+      EXPECT_EQ(stages.front(), "expected-surface");
+      EXPECT_EQ(stages.back(), "fitted-expected-surface") << stages.dump();
+      // The default cell has a table 0.2 m from the base: refitted among the mapped objects.
+      EXPECT_NE(std::find(stages.begin(), stages.end(), "in-context"), stages.end()) << stages.dump();
+      EXPECT_TRUE(j["method_steps_ms"].contains("context"));
       EXPECT_LT(j["add_m"].get<double>(), 0.015);
       adds.push_back(j["add_m"].get<double>());
     }
   }
   std::sort(adds.begin(), adds.end());
   EXPECT_LT(adds[adds.size() / 2], 0.010) << "median ADD";
+  // --no-context and arref-icp-fast skip that refit.
+  const std::string base = dir_ + "/cell41";
+  for (const char* variant : {"--no-context", "--method arref-icp-fast"}) {
+    const auto r = RunCommand(Arref() + " register --scene " + base + ".ply --truth " + base + ".json --json " + variant);
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    const auto stages = nlohmann::json::parse(r.out)["stages_run"];
+    EXPECT_EQ(std::find(stages.begin(), stages.end(), "in-context"), stages.end()) << variant << stages.dump();
+  }
 }
 
 TEST_F(CliTest, UnityFrameRoundTrip) {

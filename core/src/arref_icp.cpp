@@ -151,7 +151,7 @@ Result<Candidate> RefineForWalk(const MethodInput& in, const PointCloud& all_rou
 // towards a table, noise-free). The chosen walk's surface is fused again with the mapped objects
 // round the fitted pose, and the pose polished with it.
 Candidate RefineInContext(const MethodInput& in, int walk, const TargetCloud& target, const Candidate& best,
-                                  PointCloud* fitted, std::vector<std::string>* stages) {
+                          PointCloud* fitted, std::vector<std::string>* stages) {
   auto surface = in.robot->ExpectedInContext(in.voxel_m, walk, *in.scene_mesh_world, best.T_world_base);
   if (!surface.ok()) {  // the fit without the objects stands
     spdlog::warn("arref-icp: no expected surface in context, keeping the fit without it: {}", surface.status().ToString());

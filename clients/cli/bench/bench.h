@@ -57,6 +57,7 @@ struct Run {
   std::string error;
   double rms_m = 0, add_m = 0, translation_m = 0, rotation_deg = 0;
   std::map<std::string, double> stage_ms;
+  int iterations = 0;  // the method's ICP iterations; 0 where it does not report them (Open3D 0.16)
   double total_ms = 0;
   double peak_mb = 0;
 };
@@ -88,6 +89,7 @@ struct Row {
   double rms_mean_mm = 0, rms_min_mm = 0, rms_max_mm = 0, rms_std_mm = 0;
   double add_median_mm = 0, add_p95_mm = 0, translation_median_mm = 0, rotation_median_deg = 0;
   double register_median_ms = 0, total_median_ms = 0, mls_median_ms = 0;
+  double iteration_median_ms = 0;  // register time / iterations, median over the runs that report them
   double peak_mb = 0;
 };
 Row Summarise(const std::vector<const Run*>& runs, std::map<std::string, std::string> labels);

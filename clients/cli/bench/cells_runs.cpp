@@ -74,6 +74,7 @@ void ExecuteOne(Job& job) {
   run.ok = true;
   run.status = ResultStatusName(report->status);
   run.rms_m = report->rms_m, run.add_m = e.add_m, run.translation_m = e.translation_m, run.rotation_deg = e.rotation_deg;
+  run.iterations = report->iterations;
   for (const auto& t : report->timings) run.stage_ms[t.stage] += t.ms;
   for (const auto& t : report->method_steps) run.stage_ms["register/" + t.stage] += t.ms;
   run.total_ms = report->total_ms();
@@ -150,7 +151,7 @@ Row Summarise(const std::vector<const Run*>& runs, std::map<std::string, std::st
   Row row;
   row.labels = std::move(labels);
   row.runs = runs.size();
-  std::vector<double> rms, add, translation, rotation, reg, total, mls;
+  std::vector<double> rms, add, translation, rotation, reg, total, mls, per_iteration;
   std::size_t successes = 0, within_20 = 0, said_ok = 0;
   for (const Run* r : runs) {
     row.peak_mb = std::max(row.peak_mb, r->peak_mb);
@@ -167,6 +168,8 @@ Row Summarise(const std::vector<const Run*>& runs, std::map<std::string, std::st
     rms.push_back(r->rms_m * 1e3), add.push_back(r->add_m * 1e3);
     translation.push_back(r->translation_m * 1e3), rotation.push_back(r->rotation_deg);
     if (r->stage_ms.count("register")) reg.push_back(r->stage_ms.at("register"));
+    if (r->stage_ms.count("register") && r->iterations > 0)
+      per_iteration.push_back(r->stage_ms.at("register") / r->iterations);
     if (r->stage_ms.count("mls")) mls.push_back(r->stage_ms.at("mls"));
     if (r->total_ms > 0) total.push_back(r->total_ms);
   }
@@ -186,6 +189,7 @@ Row Summarise(const std::vector<const Run*>& runs, std::map<std::string, std::st
   row.add_median_mm = Quantile(add, 0.5), row.add_p95_mm = Quantile(add, 0.95);
   row.translation_median_mm = Quantile(translation, 0.5), row.rotation_median_deg = Quantile(rotation, 0.5);
   row.register_median_ms = Quantile(reg, 0.5), row.total_median_ms = Quantile(total, 0.5), row.mls_median_ms = Quantile(mls, 0.5);
+  row.iteration_median_ms = Quantile(per_iteration, 0.5);
   return row;
 }
 

@@ -45,6 +45,7 @@ const std::vector<Column>& StatColumns() {
       {"transl. median mm", [](const Row& r) { return Num(r.translation_median_mm); }},
       {"rot. median deg", [](const Row& r) { return Num(r.rotation_median_deg, 2); }},
       {"register median ms", [](const Row& r) { return Num(r.register_median_ms, 0); }},
+      {"ms per iteration", [](const Row& r) { return Num(r.iteration_median_ms, 3); }},
       {"MLS median ms", [](const Row& r) { return Num(r.mls_median_ms, 0); }},
       {"total median ms", [](const Row& r) { return Num(r.total_median_ms, 0); }},
       {"peak MB", [](const Row& r) { return Num(r.peak_mb, 0); }},
@@ -89,15 +90,15 @@ Status RunsCsv(const std::string& path, const std::vector<Run>& runs) {
   std::ofstream out(path);
   if (!out) return Status::IoError("cannot write " + path);
   out << "experiment,method,size,params,scene,cell,seed,perturbation,seed_yaw_deg,offset_x,offset_y,offset_z,ok,status,"
-         "rms_mm,add_mm,translation_mm,rotation_deg,crop_ms,sample_ms,mls_ms,register_ms,total_ms,peak_mb,error\n";
+         "rms_mm,add_mm,translation_mm,rotation_deg,crop_ms,sample_ms,mls_ms,register_ms,total_ms,peak_mb,iterations,error\n";
   auto stage = [](const Run& r, const char* s) { return r.stage_ms.count(s) ? Num(r.stage_ms.at(s), 1) : ""; };
   for (const auto& r : runs)
-    out << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", r.experiment, Csv(r.method),
+    out << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", r.experiment, Csv(r.method),
                        r.size, Csv(r.params), r.scene_kind, r.cell, r.seed, r.perturbation, r.seed_yaw_deg,
                        r.seed_offset_m.x(), r.seed_offset_m.y(), r.seed_offset_m.z(), r.ok ? 1 : 0, r.status, Num(r.rms_m * 1e3, 3),
                        Num(r.add_m * 1e3, 3), Num(r.translation_m * 1e3, 3), Num(r.rotation_deg, 3), stage(r, "crop"),
                        stage(r, "sample"), stage(r, "mls"), stage(r, "register"), Num(r.total_ms, 1), Num(r.peak_mb, 0),
-                       Csv(r.error));
+                       r.iterations, Csv(r.error));
   return out ? Status::Ok() : Status::IoError("error writing " + path);
 }
 

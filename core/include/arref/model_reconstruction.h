@@ -48,10 +48,9 @@ class ExpectedSurfaceMaker {
   ~ExpectedSurfaceMaker();
   // As ExpectedRobotSurface. Const and thread-safe.
   Result<PointCloud> Make(const ReconstructionOptions& options, std::size_t samples) const;
-  // The same with the other objects the headset mapped round the robot (`context_base`: a
-  // table, walls, clutter, in the base frame): they hide parts of the robot from the eyes and
-  // fuse with it, as they did in the headset's mesh.
-  // The context is taken from the headset's mesh with the robot at T_world_base: the triangles
+  // The same with the other objects the headset mapped round the robot (a table, walls,
+  // clutter): they hide parts of the robot from the eyes and fuse with it, as they did in the
+  // headset's mesh. They are the triangles of scene_world, with the robot at T_world_base,
   // farther than clearance_m from the robot's exact surface.
   Result<PointCloud> MakeInContext(const ReconstructionOptions& options, std::size_t samples,
                                    const TriangleMesh& scene_world, const Iso3& T_world_base,

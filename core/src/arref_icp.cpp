@@ -112,6 +112,13 @@ Candidate Refine(const PointCloud& fine, const TargetCloud& target, const Candid
   return {st.T_target_source, ScoreAlignment(fine, target, st.T_target_source, 0.02, 0.5).inlier_fraction, iterations};
 }
 
+// A refined pose polished with another surface: the pose moves, its score stays, the
+// iterations add up.
+Candidate Polish(const PointCloud& surface, const TargetCloud& target, const Candidate& best, const ArrefIcpParams& p) {
+  const Candidate c = Refine(surface, target, {best.T_world_base, best.score, 0}, p, kPolishLevels);
+  return {c.T_world_base, best.score, best.iterations + c.iterations};
+}
+
 // The expected surface assumes the robot was mapped from all round; a user maps one side, and
 // the other side's shell differs (measured: 4-6 mm of bias away from the walked side). Each
 // one-sided walk's surface is laid on the scene at the fitted pose; if one lies closer than the
@@ -142,8 +149,7 @@ Result<Candidate> RefineForWalk(const MethodInput& in, const PointCloud& all_rou
   if (best_walk < 0) return best;
   *fitted = std::move(surfaces[best_walk]);
   stages->push_back(fmt::format("walk-{}", best_walk));
-  Candidate c = Refine(*fitted, target, {best.T_world_base, best.score, 0}, p, kPolishLevels);
-  return Candidate{c.T_world_base, best.score, best.iterations + c.iterations};
+  return Polish(*fitted, target, best, p);
 }
 
 // Objects near the robot (a table 0.2 m from its base) hide parts of it from the walker and
@@ -160,8 +166,7 @@ Candidate RefineInContext(const MethodInput& in, int walk, const TargetCloud& ta
   }
   *fitted = Thin(*surface, in.options.arref_icp.fine_points);
   stages->push_back("in-context");
-  Candidate c = Refine(*fitted, target, {best.T_world_base, best.score, 0}, in.options.arref_icp, kPolishLevels);
-  return Candidate{c.T_world_base, best.score, best.iterations + c.iterations};
+  return Polish(*fitted, target, best, in.options.arref_icp);
 }
 
 // Which surface explains the scene: a fused headset mesh is matched by the expected surface,
@@ -171,14 +176,14 @@ Candidate ExactIfCloser(const MethodInput& in, const PointCloud& expected_fine, 
                         const Candidate& best, std::vector<std::string>* stages) {
   const ArrefIcpParams& p = in.options.arref_icp;
   const PointCloud exact_fine = Thin(VisiblePoints(in.model_base), p.fine_points);
-  Candidate exact = Refine(exact_fine, target, {best.T_world_base, best.score, 0}, p, kPolishLevels);
+  const Candidate exact = Polish(exact_fine, target, best, p);
   const double d_expected = MedianPlaneDistance(expected_fine, target, best.T_world_base, 0.03, 0.5);
   const double d_exact = MedianPlaneDistance(exact_fine, target, exact.T_world_base, 0.03, 0.5);
   spdlog::debug("arref-icp: median plane distance {:.1f} mm expected surface, {:.1f} mm exact", d_expected * 1e3,
                 d_exact * 1e3);
   if (d_exact < d_expected) {
     stages->push_back("fitted-exact-surface");
-    return {exact.T_world_base, best.score, best.iterations + exact.iterations};
+    return exact;
   }
   stages->push_back("fitted-expected-surface");
   return best;

@@ -11,6 +11,7 @@
 #include "arref/nearest_neighbor.h"
 #include "arref/raycaster.h"
 #include "arref/sampling.h"
+#include "arref/spatial_mesh.h"
 #include "arref/tsdf.h"
 
 namespace arref {
@@ -37,6 +38,16 @@ void NearerOf(const RangeImage& other, const std::vector<float>& other_incidence
 
 Vec3f Centroid(const TriangleMesh& mesh, const Triangle& t) {
   return (mesh.vertices[t[0]] + mesh.vertices[t[1]] + mesh.vertices[t[2]]) / 3.0f;
+}
+
+// The triangles whose centroid `keep` accepts, on the same vertices.
+template <class Keep>
+TriangleMesh KeepTriangles(const TriangleMesh& mesh, Keep keep) {
+  TriangleMesh out;
+  out.vertices = mesh.vertices;
+  for (const Triangle& t : mesh.triangles)
+    if (keep(Centroid(mesh, t))) out.triangles.push_back(t);
+  return out;
 }
 
 }  // namespace
@@ -100,17 +111,13 @@ Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const ReconstructionOptions& o, 
 // to the other objects.
 TriangleMesh ExpectedSurfaceMaker::RobotPart(const TriangleMesh& fused, const PointIndex* context) const {
   const float floor_z = std::min(0.0f, parts_->box.min.z());
-  TriangleMesh out;
-  out.vertices = fused.vertices;
-  for (const Triangle& t : fused.triangles) {
-    const Vec3f c = Centroid(fused, t);
+  return KeepTriangles(fused, [&](const Vec3f& c) {
     float limit_sq = (c.z() - floor_z) * (c.z() - floor_z);
     std::uint32_t i;
     float sq;
     if (context && context->NearestWithin(c, limit_sq, &i, &sq)) limit_sq = sq;
-    if (parts_->robot.NearestWithin(c, limit_sq, &i, &sq)) out.triangles.push_back(t);
-  }
-  return out;
+    return parts_->robot.NearestWithin(c, limit_sq, &i, &sq);
+  });
 }
 
 Result<PointCloud> ExpectedSurfaceMaker::Make(const ReconstructionOptions& options, std::size_t samples) const {
@@ -136,12 +143,7 @@ Result<PointCloud> ExpectedSurfaceMaker::MakeInContext(const ReconstructionOptio
 std::vector<Vec3f> ExpectedSurfaceMaker::FusedPart(const TriangleMesh& context_base,
                                                    const ReconstructionOptions& options) const {
   const TsdfOptions volume = Volume(options);
-  const Vec3f centre = volume.crop_center.cast<float>();
-  const auto radius = static_cast<float>(volume.crop_radius_m + options.voxel_m);
-  TriangleMesh inside;
-  inside.vertices = context_base.vertices;
-  for (const Triangle& t : context_base.triangles)
-    if ((Centroid(context_base, t) - centre).norm() < radius) inside.triangles.push_back(t);
+  const TriangleMesh inside = CropToSphere(context_base, volume.crop_center, volume.crop_radius_m + options.voxel_m);
   if (inside.empty()) return {};
   const double per_m2 = 2 / (options.voxel_m * options.voxel_m);
   const auto count = static_cast<std::size_t>(std::clamp(per_m2 * inside.SurfaceArea(), 1.0, 200000.0));
@@ -152,16 +154,12 @@ TriangleMesh ExpectedSurfaceMaker::Context(const TriangleMesh& scene_world, cons
                                            double clearance_m) const {
   TriangleMesh base;
   base.Append(scene_world, T_world_base.inverse());
-  TriangleMesh out;
-  out.vertices = base.vertices;
   const float clear_sq = static_cast<float>(clearance_m * clearance_m);
-  for (const Triangle& t : base.triangles) {
-    const Vec3f c = Centroid(base, t);
+  return KeepTriangles(base, [&](const Vec3f& c) {
     std::uint32_t i;
     float sq;
-    if (!parts_->robot.NearestWithin(c, clear_sq, &i, &sq)) out.triangles.push_back(t);
-  }
-  return out;
+    return !parts_->robot.NearestWithin(c, clear_sq, &i, &sq);
+  });
 }
 
 Result<PointCloud> ExpectedSurfaceMaker::Sample(const ReconstructionOptions& options, const RayCaster* context_caster,

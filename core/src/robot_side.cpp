@@ -1,8 +1,8 @@
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
-#include <chrono>
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 
 #include "arref/model_reconstruction.h"
@@ -10,10 +10,15 @@
 
 namespace arref {
 namespace {
-constexpr double kWalkArcDeg = 220.0;
+constexpr double kWalkArcDeg = 220.0;  // the side a user maps walking round a robot
 // Mapped triangles this near the robot's exact surface are the robot's own (its fused shell
 // lies up to ~4 cm off it under overhangs), not other objects.
-constexpr double kContextClearanceM = 0.05;  // the side a user maps walking round a robot
+constexpr double kContextClearanceM = 0.05;
+
+Status CheckWalk(int walk) {
+  if (walk < -1 || walk >= RobotSide::kWalks) return Status::InvalidArgument(fmt::format("no walk {} round the robot", walk));
+  return Status::Ok();
+}
 
 ReconstructionOptions WalkOptions(double voxel_m, int walk) {
   ReconstructionOptions options;
@@ -36,7 +41,7 @@ Result<std::shared_ptr<const RobotSide>> RobotSide::Create(const RobotModel& rob
 }
 
 Result<std::shared_ptr<const PointCloud>> RobotSide::Expected(double voxel_m, int walk) const {
-  if (walk < -1 || walk >= kWalks) return Status::InvalidArgument(fmt::format("no walk {} round the robot", walk));
+  ARREF_RETURN_IF_ERROR(CheckWalk(walk));
   // Meshes a fraction of a millimetre apart fuse alike.
   const std::pair<long, int> key{std::lround(voxel_m * 1000), walk};
   // Built under the lock: concurrent requests for the same voxel wait for one build.
@@ -65,7 +70,7 @@ Result<std::shared_ptr<const ExpectedSurfaceMaker>> RobotSide::Maker() const {
 
 Result<PointCloud> RobotSide::ExpectedInContext(double voxel_m, int walk, const TriangleMesh& scene_world,
                                                 const Iso3& T_world_base) const {
-  if (walk < -1 || walk >= kWalks) return Status::InvalidArgument(fmt::format("no walk {} round the robot", walk));
+  ARREF_RETURN_IF_ERROR(CheckWalk(walk));
   std::shared_ptr<const ExpectedSurfaceMaker> maker;
   {
     std::lock_guard lock(mutex_);

@@ -9,6 +9,7 @@
 
 #include "arref/builtin.h"
 #include "arref/fast_icp.h"
+#include "arref/model_reconstruction.h"
 #include "arref/model_visibility.h"
 #include "arref/pipeline.h"
 #include "arref/sampling.h"
@@ -21,7 +22,10 @@ namespace {
 struct Fixture {
   PointCloud model;  // visible robot points, base frame
   PointCloud scene;  // 16,000 world points with normals
+  TriangleMesh scene_mesh;  // the headset's mesh, world frame
   Iso3 T_world_base;
+  Iso3 T_world_seed;  // a user-like seed
+  std::shared_ptr<const RobotSide> robot;
 };
 
 const Fixture& Cell() {
@@ -34,7 +38,10 @@ const Fixture& Cell() {
     out.T_world_base = cell->T_world_base;
     auto model = SampleRobot(*robot, cell->joints, 10000, 1);
     out.model = VisiblePoints(*model);
-    out.scene = SampleSurface(CropToSphere(map.MergedWorld(), cell->T_world_base.translation(), 2.0), 16000, 1);
+    out.scene_mesh = map.MergedWorld();
+    out.scene = SampleSurface(CropToSphere(out.scene_mesh, cell->T_world_base.translation(), 2.0), 16000, 1);
+    out.T_world_seed = cell->seeds.front();
+    out.robot = *RobotSide::Create(*robot, cell->joints, 10000, 1);
     return out;
   }();
   return f;
@@ -88,6 +95,27 @@ void BM_PclIteration(benchmark::State& state) {
                                                    benchmark::Counter::kIsIterationInvariantRate | benchmark::Counter::kInvert);
 }
 
+// One request end to end as the server runs it (crop, sample, register, evaluate), with the
+// robot side's cached surfaces already made: arg 1 with the refit in context, 0 without.
+void BM_Request(benchmark::State& state) {
+  RegistrationOptions options;
+  options.arref_icp.in_context = state.range(0) != 0;
+  const Fixture& f = Cell();
+  auto warm = RegisterScene(*f.robot, f.scene_mesh, f.T_world_seed, options);
+  if (!warm.ok()) return state.SkipWithError(warm.status().ToString().c_str());
+  for (auto _ : state) benchmark::DoNotOptimize(RegisterScene(*f.robot, f.scene_mesh, f.T_world_seed, options));
+}
+
+// The refit's expected surface alone: the chosen walk fused again with the mapped objects.
+void BM_ExpectedInContext(benchmark::State& state) {
+  const Fixture& f = Cell();
+  const TriangleMesh scene = CropToSphere(f.scene_mesh, f.T_world_base.translation(), 2.0);
+  const double voxel = MedianEdgeLength(scene);
+  for (auto _ : state) benchmark::DoNotOptimize(f.robot->ExpectedInContext(voxel, 0, scene, f.T_world_base));
+}
+
+BENCHMARK(BM_Request)->Arg(1)->Arg(0)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_ExpectedInContext)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ArrefIteration)->ArgsProduct({{2000, 5000}, {1, 2}})->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_PclIteration)->Arg(2000)->Arg(5000)->Unit(benchmark::kMillisecond);
 

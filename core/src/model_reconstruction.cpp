@@ -5,7 +5,10 @@
 
 #include <algorithm>
 #include <cmath>
+#include <map>
+#include <mutex>
 #include <numbers>
+#include <tuple>
 
 #include "arref/model_visibility.h"
 #include "arref/nearest_neighbor.h"
@@ -50,13 +53,44 @@ TriangleMesh KeepTriangles(const TriangleMesh& mesh, Keep keep) {
   return out;
 }
 
+// The triangles whose bounds overlap the box (a triangle larger than the box is kept too).
+TriangleMesh TrianglesInBox(const TriangleMesh& mesh, const Aabb& box) {
+  TriangleMesh out;
+  out.vertices = mesh.vertices;
+  for (const Triangle& t : mesh.triangles) {
+    Aabb bounds;
+    for (std::uint32_t v : t) bounds.Extend(mesh.vertices[v]);
+    if (bounds.Overlaps(box)) out.triangles.push_back(t);
+  }
+  return out;
+}
+
 }  // namespace
+
+struct ExpectedSurfaceMaker::View {
+  RangeImage range;
+  std::vector<float> incidence;
+};
+
+struct ExpectedSurfaceMaker::Rig {
+  PinholeCamera camera;
+  double max_range;
+  std::vector<Iso3> T_base_cameras;
+};
+
+// The robot's images kept per eye rig (RobotViews).
+struct ExpectedSurfaceMaker::ViewCache {
+  using Key = std::tuple<double, double, double, int, double, double, double, double, double, double>;
+  std::mutex mutex;
+  std::map<Key, std::shared_ptr<const std::vector<View>>> kept;
+};
 
 struct ExpectedSurfaceMaker::Parts {
   RayCaster caster;  // the robot on its floor
   PointIndex robot;  // dense samples of the exact surface: which fused triangles are robot
   Aabb box;
   std::uint64_t seed;
+  std::unique_ptr<ViewCache> views = std::make_unique<ViewCache>();
 };
 
 ExpectedSurfaceMaker::ExpectedSurfaceMaker(std::unique_ptr<Parts> parts) : parts_(std::move(parts)) {}
@@ -80,29 +114,66 @@ TsdfOptions ExpectedSurfaceMaker::Volume(const ReconstructionOptions& o) const {
   tsdf.truncation_m = std::max(o.truncation_voxels * o.voxel_m, o.min_truncation_m);
   tsdf.crop_center = ((parts_->box.min + parts_->box.max) / 2).cast<double>();
   tsdf.crop_radius_m = 0.5 * (parts_->box.max - parts_->box.min).norm() + 2 * tsdf.truncation_m;
+  // Only the band round the robot: its shell lies within the truncation of its surface, and a
+  // cell beyond needs one voxel more. The floor and objects farther off cost time, change nothing.
+  tsdf.near_points = &parts_->robot.points();
+  tsdf.near_margin_m = tsdf.truncation_m + 2 * o.voxel_m;
   return tsdf;
 }
 
-Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const ReconstructionOptions& o, const RayCaster* context) const {
+// The eyes of a walk: one camera on an arc round the robot, each looking at its centre.
+ExpectedSurfaceMaker::Rig ExpectedSurfaceMaker::Eyes(const ReconstructionOptions& o) const {
   const TsdfOptions tsdf = Volume(o);
-  const Vec3 centre = tsdf.crop_center;
-  TsdfVolume volume(tsdf);
   const double image_width_m = 2 * o.distance_m * std::tan(o.fov_horizontal_deg * std::numbers::pi / 360);
   const int width = std::clamp(static_cast<int>(std::ceil(image_width_m / o.voxel_m * o.pixels_per_voxel)), 64, 2048);
-  const PinholeCamera camera = PinholeCamera::FromFov(width, width * 9 / 10, o.fov_horizontal_deg);
-  const double max_range = o.distance_m + 2 * tsdf.crop_radius_m + o.eye_height_m;
+  Rig rig{PinholeCamera::FromFov(width, width * 9 / 10, o.fov_horizontal_deg),
+          o.distance_m + 2 * tsdf.crop_radius_m + o.eye_height_m, {}};
   // A full circle has no ends: its eyes are spread without doubling the first.
   const double step = o.arc_deg >= 360 ? 360.0 / o.azimuths : o.arc_deg / std::max(1, o.azimuths - 1);
   const double first = o.arc_deg >= 360 ? 0.0 : -o.arc_deg / 2;
   for (int a = 0; a < o.azimuths; ++a) {
     const double azimuth = (o.arc_center_deg + first + step * a) * std::numbers::pi / 180;
-    const Iso3 T_base_camera =
-        LookAt(Vec3(o.distance_m * std::cos(azimuth), o.distance_m * std::sin(azimuth), o.eye_height_m), centre);
-    std::vector<float> incidence, context_incidence;
-    RangeImage range = parts_->caster.Render(camera, T_base_camera, max_range, &incidence);
-    if (context) NearerOf(context->Render(camera, T_base_camera, max_range, &context_incidence), context_incidence,
-                          &range, &incidence);
-    ARREF_RETURN_IF_ERROR(volume.Integrate(camera, T_base_camera, range, incidence));
+    rig.T_base_cameras.push_back(
+        LookAt(Vec3(o.distance_m * std::cos(azimuth), o.distance_m * std::sin(azimuth), o.eye_height_m), tsdf.crop_center));
+  }
+  return rig;
+}
+
+// The robot's images from every eye. Kept when `keep`: a refit in context renders the same
+// robot from the same eyes on every request, only the objects round it change.
+std::shared_ptr<const std::vector<ExpectedSurfaceMaker::View>> ExpectedSurfaceMaker::RobotViews(
+    const ReconstructionOptions& o, const Rig& rig, bool keep) const {
+  const auto key = std::make_tuple(o.voxel_m, o.truncation_voxels, o.min_truncation_m, o.azimuths, o.arc_deg,
+                                   o.arc_center_deg, o.distance_m, o.eye_height_m, o.pixels_per_voxel,
+                                   o.fov_horizontal_deg);
+  {
+    std::lock_guard lock(parts_->views->mutex);
+    if (auto it = parts_->views->kept.find(key); it != parts_->views->kept.end()) return it->second;
+  }
+  auto views = std::make_shared<std::vector<View>>();
+  for (const Iso3& T_base_camera : rig.T_base_cameras) {
+    View view;
+    view.range = parts_->caster.Render(rig.camera, T_base_camera, rig.max_range, &view.incidence);
+    views->push_back(std::move(view));
+  }
+  if (keep) {  // two requests may have rendered the same rig at once: the first one kept wins
+    std::lock_guard lock(parts_->views->mutex);
+    return parts_->views->kept.emplace(key, views).first->second;
+  }
+  return views;
+}
+
+Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const ReconstructionOptions& o, const RayCaster* context) const {
+  TsdfVolume volume(Volume(o));
+  const Rig rig = Eyes(o);
+  const auto robot_views = RobotViews(o, rig, context != nullptr);
+  for (std::size_t a = 0; a < rig.T_base_cameras.size(); ++a) {
+    View view = (*robot_views)[a];
+    std::vector<float> context_incidence;
+    if (context)
+      NearerOf(context->Render(rig.camera, rig.T_base_cameras[a], rig.max_range, &context_incidence),
+               context_incidence, &view.range, &view.incidence);
+    ARREF_RETURN_IF_ERROR(volume.Integrate(rig.camera, rig.T_base_cameras[a], view.range, view.incidence));
   }
   return volume.ExtractMesh();
 }
@@ -138,12 +209,13 @@ Result<PointCloud> ExpectedSurfaceMaker::MakeInContext(const ReconstructionOptio
   return Sample(options, &*caster, &context, samples);
 }
 
-// Points on the objects inside the fused volume, where they can border the robot's shell: two
+// Points on the objects in the fused band round the robot, where they can border its shell: two
 // per voxel face, so big triangles are covered as well as a headset's small ones.
 std::vector<Vec3f> ExpectedSurfaceMaker::FusedPart(const TriangleMesh& context_base,
                                                    const ReconstructionOptions& options) const {
   const TsdfOptions volume = Volume(options);
-  const TriangleMesh inside = CropToSphere(context_base, volume.crop_center, volume.crop_radius_m + options.voxel_m);
+  const auto margin = static_cast<float>(volume.near_margin_m + options.voxel_m);
+  const TriangleMesh inside = TrianglesInBox(context_base, parts_->box.Grown(margin));
   if (inside.empty()) return {};
   const double per_m2 = 2 / (options.voxel_m * options.voxel_m);
   const auto count = static_cast<std::size_t>(std::clamp(per_m2 * inside.SurfaceArea(), 1.0, 200000.0));
@@ -155,7 +227,9 @@ TriangleMesh ExpectedSurfaceMaker::Context(const TriangleMesh& scene_world, cons
   TriangleMesh base;
   base.Append(scene_world, T_world_base.inverse());
   const float clear_sq = static_cast<float>(clearance_m * clearance_m);
+  const Aabb near_robot = parts_->box.Grown(static_cast<float>(clearance_m));
   return KeepTriangles(base, [&](const Vec3f& c) {
+    if (!near_robot.Contains(c)) return true;
     std::uint32_t i;
     float sq;
     return !parts_->robot.NearestWithin(c, clear_sq, &i, &sq);

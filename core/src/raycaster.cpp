@@ -35,14 +35,6 @@ Vec3 PinholeCamera::RayDirection(int u, int v) const {
   return Vec3((u + 0.5 - cx()) / focal_px, (v + 0.5 - cy()) / focal_px, 1.0).normalized();
 }
 
-int PinholeCamera::PixelOf(const Vec3& p) const {
-  if (p.z() <= 1e-6) return -1;
-  const double u = focal_px * p.x() / p.z() + cx();
-  const double v = focal_px * p.y() / p.z() + cy();
-  if (!(u >= 0 && v >= 0 && u < width && v < height)) return -1;
-  return static_cast<int>(v) * width + static_cast<int>(u);
-}
-
 struct RayCaster::Impl {
   RTCDevice device = nullptr;
   RTCScene scene = nullptr;

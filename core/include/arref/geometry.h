@@ -50,6 +50,9 @@ struct Aabb {
   Vec3f max = Vec3f::Constant(std::numeric_limits<float>::lowest());
   void Extend(const Vec3f& p) { min = min.cwiseMin(p); max = max.cwiseMax(p); }
   bool valid() const { return (min.array() <= max.array()).all(); }
+  bool Contains(const Vec3f& p) const { return (p.array() >= min.array()).all() && (p.array() <= max.array()).all(); }
+  bool Overlaps(const Aabb& o) const { return (o.min.array() <= max.array()).all() && (min.array() <= o.max.array()).all(); }
+  Aabb Grown(float margin) const { return {min.array() - margin, max.array() + margin}; }
 };
 Aabb BoundsOf(const std::vector<Vec3f>& points);
 

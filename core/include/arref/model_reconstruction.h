@@ -11,6 +11,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <vector>
 
 #include "arref/geometry.h"
 #include "arref/status.h"
@@ -58,7 +59,13 @@ class ExpectedSurfaceMaker {
 
  private:
   struct Parts;
+  struct View;
+  struct Rig;
+  struct ViewCache;
   explicit ExpectedSurfaceMaker(std::unique_ptr<Parts> parts);
+  Rig Eyes(const ReconstructionOptions& options) const;
+  std::shared_ptr<const std::vector<View>> RobotViews(const ReconstructionOptions& options, const Rig& rig,
+                                                      bool keep) const;
   Result<TriangleMesh> Fuse(const ReconstructionOptions& options, const RayCaster* context) const;
   TsdfOptions Volume(const ReconstructionOptions& options) const;
   TriangleMesh Context(const TriangleMesh& scene_world, const Iso3& T_world_base, double clearance_m) const;

@@ -21,7 +21,14 @@ struct PinholeCamera {
   double cy() const { return 0.5 * height; }
   Vec3 RayDirection(int u, int v) const;  // unit, camera frame
   // Pixel index hit by a camera-frame point, or -1 when behind the camera or off the image.
-  int PixelOf(const Vec3& p_camera) const;
+  // Inline: TSDF fusion calls it for every voxel of every view.
+  int PixelOf(const Vec3& p) const {
+    if (p.z() <= 1e-6) return -1;
+    const double u = focal_px * p.x() / p.z() + cx();
+    const double v = focal_px * p.y() / p.z() + cy();
+    if (!(u >= 0 && v >= 0 && u < width && v < height)) return -1;
+    return static_cast<int>(v) * width + static_cast<int>(u);
+  }
 };
 
 // T_scene_camera of an optical camera at `eye` looking at `target`, image rows downwards in

@@ -6,6 +6,7 @@
 #include <cstdint>
 #include <deque>
 #include <unordered_map>
+#include <unordered_set>
 #include <vector>
 
 #include "arref/geometry.h"
@@ -19,6 +20,11 @@ struct TsdfOptions {
   double truncation_m = 0.09;
   Vec3 crop_center = Vec3::Zero();  // only blocks within crop_radius_m of it are allocated
   double crop_radius_m = 3.0;
+  // When given, blocks are allocated only within near_margin_m of these points too: the band
+  // round one object's surface, without the rest of the scene's (the points must outlive the
+  // volume's constructor, which reads them).
+  const std::vector<Vec3f>* near_points = nullptr;
+  double near_margin_m = 0.0;
   std::size_t max_blocks = 400000;  // ~1.6 GB of voxels: beyond that the options are unreasonable
 };
 
@@ -58,6 +64,7 @@ class TsdfVolume {
 
   static Key KeyOf(const Eigen::Vector3i& block);
   Eigen::Vector3i BlockOf(const Vec3& p) const;
+  void MarkNearBlocks(const std::vector<Vec3f>& points);
   Status AllocateBand(const PinholeCamera& camera, const Iso3& T_volume_camera, const RangeImage& range);
   void UpdateBlock(Block& block, const PinholeCamera& camera, const Iso3& T_camera_volume,
                    const RangeImage& range, const std::vector<float>& incidence) const;
@@ -74,6 +81,8 @@ class TsdfVolume {
   TsdfOptions options_;
   std::deque<Block> blocks_;
   std::unordered_map<Key, int> index_;
+  bool near_only_ = false;
+  std::unordered_set<Key> near_;  // the blocks near options_.near_points, if given
 };
 
 }  // namespace arref

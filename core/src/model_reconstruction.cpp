@@ -121,6 +121,11 @@ TsdfOptions ExpectedSurfaceMaker::Volume(const ReconstructionOptions& o) const {
   return tsdf;
 }
 
+// A box round the band that the fusion keeps (Volume), one voxel more.
+Aabb ExpectedSurfaceMaker::Band(const ReconstructionOptions& options) const {
+  return parts_->box.Grown(static_cast<float>(Volume(options).near_margin_m + options.voxel_m));
+}
+
 // The eyes of a walk: one camera on an arc round the robot, each looking at its centre.
 ExpectedSurfaceMaker::Rig ExpectedSurfaceMaker::Eyes(const ReconstructionOptions& o) const {
   const TsdfOptions tsdf = Volume(o);
@@ -213,9 +218,7 @@ Result<PointCloud> ExpectedSurfaceMaker::MakeInContext(const ReconstructionOptio
 // per voxel face, so big triangles are covered as well as a headset's small ones.
 std::vector<Vec3f> ExpectedSurfaceMaker::FusedPart(const TriangleMesh& context_base,
                                                    const ReconstructionOptions& options) const {
-  const TsdfOptions volume = Volume(options);
-  const auto margin = static_cast<float>(volume.near_margin_m + options.voxel_m);
-  const TriangleMesh inside = TrianglesInBox(context_base, parts_->box.Grown(margin));
+  const TriangleMesh inside = TrianglesInBox(context_base, Band(options));
   if (inside.empty()) return {};
   const double per_m2 = 2 / (options.voxel_m * options.voxel_m);
   const auto count = static_cast<std::size_t>(std::clamp(per_m2 * inside.SurfaceArea(), 1.0, 200000.0));

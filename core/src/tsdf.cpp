@@ -108,16 +108,17 @@ Status TsdfVolume::AllocateBand(const PinholeCamera& camera, const Iso3& T_volum
         const Vec3 p = T_volume_camera.translation() + t * dir;
         if ((p - options_.crop_center).norm() > keep_radius) continue;
         const Eigen::Vector3i b = BlockOf(p);
-        if (const Key k = KeyOf(b); k != last) {
-          rows[v].push_back(b);
-          last = k;
-        }
+        const Key k = KeyOf(b);
+        if (k == last) continue;
+        last = k;
+        // Read-only lookups here, in parallel: after the first views nearly every block is there.
+        if (!index_.count(k) && (!near_only_ || near_.count(k))) rows[v].push_back(b);
       }
     }
   });
   for (const auto& row : rows)
     for (const Eigen::Vector3i& b : row) {
-      if (index_.count(KeyOf(b)) || (near_only_ && !near_.count(KeyOf(b)))) continue;
+      if (index_.count(KeyOf(b))) continue;
       if (blocks_.size() >= options_.max_blocks)
         return Status::ResourceExhausted("TSDF fusion needs more than " + std::to_string(options_.max_blocks) +
                                          " voxel blocks: fusion.voxel_m is too small for the scene");

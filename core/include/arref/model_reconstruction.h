@@ -68,6 +68,7 @@ class ExpectedSurfaceMaker {
                                                       bool keep) const;
   Result<TriangleMesh> Fuse(const ReconstructionOptions& options, const RayCaster* context) const;
   TsdfOptions Volume(const ReconstructionOptions& options) const;
+  Aabb Band(const ReconstructionOptions& options) const;
   TriangleMesh Context(const TriangleMesh& scene_world, const Iso3& T_world_base, double clearance_m) const;
   std::vector<Vec3f> FusedPart(const TriangleMesh& context_base, const ReconstructionOptions& options) const;
   TriangleMesh RobotPart(const TriangleMesh& fused, const PointIndex* context) const;

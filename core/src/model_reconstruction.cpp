@@ -176,7 +176,7 @@ Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const ReconstructionOptions& o, 
     View view = (*robot_views)[a];
     std::vector<float> context_incidence;
     if (context)
-      NearerOf(context->Render(rig.camera, rig.T_base_cameras[a], rig.max_range, &context_incidence),
+      NearerOf(context->Render(rig.camera, rig.T_base_cameras[a], rig.max_range, &context_incidence, &view.range),
                context_incidence, &view.range, &view.incidence);
     ARREF_RETURN_IF_ERROR(volume.Integrate(rig.camera, rig.T_base_cameras[a], view.range, view.incidence));
   }

@@ -25,6 +25,7 @@ struct Fixture {
   TriangleMesh scene_mesh;  // the headset's mesh, world frame
   Iso3 T_world_base;
   Iso3 T_world_seed;  // a user-like seed
+  JointValues joints;
   std::shared_ptr<const RobotSide> robot;
 };
 
@@ -41,6 +42,7 @@ const Fixture& Cell() {
     out.scene_mesh = map.MergedWorld();
     out.scene = SampleSurface(CropToSphere(out.scene_mesh, cell->T_world_base.translation(), 2.0), 16000, 1);
     out.T_world_seed = cell->seeds.front();
+    out.joints = cell->joints;
     out.robot = *RobotSide::Create(*robot, cell->joints, 10000, 1);
     return out;
   }();
@@ -114,7 +116,21 @@ void BM_ExpectedInContext(benchmark::State& state) {
   for (auto _ : state) benchmark::DoNotOptimize(f.robot->ExpectedInContext(voxel, 0, scene, f.T_world_base));
 }
 
+// What a new joint state costs arref-icp before its first request: the posed robot and its
+// expected surfaces (all round and the eight walks) at the headset's voxel.
+void BM_NewJointState(benchmark::State& state) {
+  auto robot = RobotModel::Load(*BuiltinRobotUrdf());
+  const Fixture& f = Cell();
+  const double voxel = MedianEdgeLength(CropToSphere(f.scene_mesh, f.T_world_base.translation(), 2.0));
+  for (auto _ : state) {
+    auto side = RobotSide::Create(*robot, f.joints, 10000, 1);
+    if (!side.ok()) return state.SkipWithError(side.status().ToString().c_str());
+    for (int walk = -1; walk < RobotSide::kWalks; ++walk) benchmark::DoNotOptimize((*side)->Expected(voxel, walk));
+  }
+}
+
 BENCHMARK(BM_Request)->Arg(1)->Arg(0)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_NewJointState)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ExpectedInContext)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ArrefIteration)->ArgsProduct({{2000, 5000}, {1, 2}})->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_PclIteration)->Arg(2000)->Arg(5000)->Unit(benchmark::kMillisecond);

@@ -148,6 +148,7 @@ ExpectedSurfaceMaker::Rig ExpectedSurfaceMaker::Eyes(const ReconstructionOptions
 // robot from the same eyes on every request, only the objects round it change.
 std::shared_ptr<const std::vector<ExpectedSurfaceMaker::View>> ExpectedSurfaceMaker::RobotViews(
     const ReconstructionOptions& o, const Rig& rig, bool keep) const {
+  // Every field of ReconstructionOptions: any of them moves the eyes or the images.
   const auto key = std::make_tuple(o.voxel_m, o.truncation_voxels, o.min_truncation_m, o.azimuths, o.arc_deg,
                                    o.arc_center_deg, o.distance_m, o.eye_height_m, o.pixels_per_voxel,
                                    o.fov_horizontal_deg);

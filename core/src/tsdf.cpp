@@ -139,20 +139,13 @@ void TsdfVolume::UpdateBlock(Block& block, const PinholeCamera& camera, const Is
   // and its division and square root cost half the double ones in this, fusion's inner loop.
   const Eigen::Vector3f o = origin.cast<float>();
   const Eigen::Matrix3f s = step.cast<float>();
-  const auto f = static_cast<float>(camera.focal_px), cx = static_cast<float>(camera.cx()),
-             cy = static_cast<float>(camera.cy());
-  const auto w = static_cast<float>(camera.width), h = static_cast<float>(camera.height);
   const auto trunc = static_cast<float>(options_.truncation_m);
   for (int z = 0; z < B; ++z)
     for (int y = 0; y < B; ++y) {
       Eigen::Vector3f p = o + s.col(1) * static_cast<float>(y) + s.col(2) * static_cast<float>(z);
       for (int x = 0; x < B; ++x, p += s.col(0)) {
-        if (p.z() <= 1e-6f) continue;
-        const float inv_z = 1.0f / p.z();
-        const float u = f * p.x() * inv_z + cx, vv = f * p.y() * inv_z + cy;
-        if (!(u >= 0 && vv >= 0 && u < w && vv < h)) continue;
-        const int pixel = static_cast<int>(vv) * camera.width + static_cast<int>(u);
-        if (range[pixel] <= 0) continue;
+        const int pixel = camera.PixelOf(p);
+        if (pixel < 0 || range[pixel] <= 0) continue;
         // Distance along the ray times the incidence cosine: distance to the surface's plane.
         const float sdf = (range[pixel] - p.norm()) * std::max(0.1f, incidence[pixel]);
         if (sdf < -trunc) continue;  // hidden behind the measured surface: no information

@@ -131,30 +131,25 @@ Status TsdfVolume::AllocateBand(const PinholeCamera& camera, const Iso3& T_volum
 void TsdfVolume::UpdateBlock(Block& block, const PinholeCamera& camera, const Iso3& T_camera_volume,
                              const RangeImage& range, const std::vector<float>& incidence) const {
   const double v = options_.voxel_m;
+  const double trunc = options_.truncation_m;
   const Vec3 origin = T_camera_volume * (block.index.cast<double>() * (B * v));
   const Eigen::Matrix3d step = T_camera_volume.linear() * v;
   const Vec3 center = origin + step * Vec3::Constant(0.5 * (B - 1));
   if (center.z() < -0.87 * B * v) return;  // wholly behind the camera
-  // Single precision from here: a voxel is millimetres, float resolves micrometres at 10 m,
-  // and its division and square root cost half the double ones in this, fusion's inner loop.
-  const Eigen::Vector3f o = origin.cast<float>();
-  const Eigen::Matrix3f s = step.cast<float>();
-  const auto trunc = static_cast<float>(options_.truncation_m);
   for (int z = 0; z < B; ++z)
-    for (int y = 0; y < B; ++y) {
-      Eigen::Vector3f p = o + s.col(1) * static_cast<float>(y) + s.col(2) * static_cast<float>(z);
-      for (int x = 0; x < B; ++x, p += s.col(0)) {
+    for (int y = 0; y < B; ++y)
+      for (int x = 0; x < B; ++x) {
+        const Vec3 p = origin + step * Vec3(x, y, z);
         const int pixel = camera.PixelOf(p);
         if (pixel < 0 || range[pixel] <= 0) continue;
         // Distance along the ray times the incidence cosine: distance to the surface's plane.
-        const float sdf = (range[pixel] - p.norm()) * std::max(0.1f, incidence[pixel]);
+        const double sdf = (range[pixel] - p.norm()) * std::max(0.1f, incidence[pixel]);
         if (sdf < -trunc) continue;  // hidden behind the measured surface: no information
         Voxel& vox = block.voxels[LocalIndex(x, y, z)];
-        const float d = std::min(1.0f, sdf / trunc);
+        const float d = static_cast<float>(std::min(1.0, sdf / trunc));
         vox.d = (vox.d * vox.w + d) / (vox.w + 1.0f);
         vox.w = std::min(vox.w + 1.0f, kMaxWeight);
       }
-    }
 }
 
 std::vector<TsdfVolume::NeighbourTable> TsdfVolume::Neighbours() const {

@@ -7,6 +7,9 @@
 #include <pcl/registration/icp.h>
 #include <tbb/global_control.h>
 
+#include <memory>
+#include <utility>
+
 #include "arref/builtin.h"
 #include "arref/fast_icp.h"
 #include "arref/model_reconstruction.h"
@@ -23,15 +26,19 @@ struct Fixture {
   PointCloud model;  // visible robot points, base frame
   PointCloud scene;  // 16,000 world points with normals
   TriangleMesh scene_mesh;  // the headset's mesh, world frame
+  TriangleMesh cropped;     // 2 m round the robot, as a request crops it
+  double voxel_m = 0.0;     // the headset mesh's voxel (median edge length)
   Iso3 T_world_base;
   Iso3 T_world_seed;  // a user-like seed
+  std::shared_ptr<const RobotModel> model_robot;
   JointValues joints;
   std::shared_ptr<const RobotSide> robot;
 };
 
 const Fixture& Cell() {
   static const Fixture f = [] {
-    auto robot = RobotModel::Load(*BuiltinRobotUrdf());
+    auto loaded = RobotModel::Load(*BuiltinRobotUrdf());
+    auto robot = std::make_shared<const RobotModel>(std::move(*loaded));
     auto cell = sim::SimulateCell(*robot, sim::SmallPreset(), 1);
     SpatialMesh map;
     for (auto& s : cell->surfaces) (void)map.Upsert(s);
@@ -40,8 +47,11 @@ const Fixture& Cell() {
     auto model = SampleRobot(*robot, cell->joints, 10000, 1);
     out.model = VisiblePoints(*model);
     out.scene_mesh = map.MergedWorld();
-    out.scene = SampleSurface(CropToSphere(out.scene_mesh, cell->T_world_base.translation(), 2.0), 16000, 1);
+    out.cropped = CropToSphere(out.scene_mesh, cell->T_world_base.translation(), 2.0);
+    out.voxel_m = MedianEdgeLength(out.cropped);
+    out.scene = SampleSurface(out.cropped, 16000, 1);
     out.T_world_seed = cell->seeds.front();
+    out.model_robot = robot;
     out.joints = cell->joints;
     out.robot = *RobotSide::Create(*robot, cell->joints, 10000, 1);
     return out;
@@ -111,21 +121,17 @@ void BM_Request(benchmark::State& state) {
 // The refit's expected surface alone: the chosen walk fused again with the mapped objects.
 void BM_ExpectedInContext(benchmark::State& state) {
   const Fixture& f = Cell();
-  const TriangleMesh scene = CropToSphere(f.scene_mesh, f.T_world_base.translation(), 2.0);
-  const double voxel = MedianEdgeLength(scene);
-  for (auto _ : state) benchmark::DoNotOptimize(f.robot->ExpectedInContext(voxel, 0, scene, f.T_world_base));
+  for (auto _ : state) benchmark::DoNotOptimize(f.robot->ExpectedInContext(f.voxel_m, 0, f.cropped, f.T_world_base));
 }
 
 // What a new joint state costs arref-icp before its first request: the posed robot and its
 // expected surfaces (all round and the eight walks) at the headset's voxel.
 void BM_NewJointState(benchmark::State& state) {
-  auto robot = RobotModel::Load(*BuiltinRobotUrdf());
   const Fixture& f = Cell();
-  const double voxel = MedianEdgeLength(CropToSphere(f.scene_mesh, f.T_world_base.translation(), 2.0));
   for (auto _ : state) {
-    auto side = RobotSide::Create(*robot, f.joints, 10000, 1);
+    auto side = RobotSide::Create(*f.model_robot, f.joints, 10000, 1);
     if (!side.ok()) return state.SkipWithError(side.status().ToString().c_str());
-    for (int walk = -1; walk < RobotSide::kWalks; ++walk) benchmark::DoNotOptimize((*side)->Expected(voxel, walk));
+    for (int walk = -1; walk < RobotSide::kWalks; ++walk) benchmark::DoNotOptimize((*side)->Expected(f.voxel_m, walk));
   }
 }
 

@@ -8,7 +8,6 @@
 #include <map>
 #include <mutex>
 #include <numbers>
-#include <tuple>
 
 #include "arref/model_visibility.h"
 #include "arref/nearest_neighbor.h"
@@ -43,26 +42,23 @@ Vec3f Centroid(const TriangleMesh& mesh, const Triangle& t) {
   return (mesh.vertices[t[0]] + mesh.vertices[t[1]] + mesh.vertices[t[2]]) / 3.0f;
 }
 
-// The triangles whose centroid `keep` accepts, on the same vertices.
+// The triangles that `keep` accepts, on the same vertices.
 template <class Keep>
 TriangleMesh KeepTriangles(const TriangleMesh& mesh, Keep keep) {
   TriangleMesh out;
   out.vertices = mesh.vertices;
   for (const Triangle& t : mesh.triangles)
-    if (keep(Centroid(mesh, t))) out.triangles.push_back(t);
+    if (keep(t)) out.triangles.push_back(t);
   return out;
 }
 
 // The triangles whose bounds overlap the box (a triangle larger than the box is kept too).
 TriangleMesh TrianglesInBox(const TriangleMesh& mesh, const Aabb& box) {
-  TriangleMesh out;
-  out.vertices = mesh.vertices;
-  for (const Triangle& t : mesh.triangles) {
+  return KeepTriangles(mesh, [&](const Triangle& t) {
     Aabb bounds;
     for (std::uint32_t v : t) bounds.Extend(mesh.vertices[v]);
-    if (bounds.Overlaps(box)) out.triangles.push_back(t);
-  }
-  return out;
+    return bounds.Overlaps(box);
+  });
 }
 
 }  // namespace
@@ -80,9 +76,8 @@ struct ExpectedSurfaceMaker::Rig {
 
 // The robot's images kept per eye rig (RobotViews).
 struct ExpectedSurfaceMaker::ViewCache {
-  using Key = std::tuple<double, double, double, int, double, double, double, double, double, double>;
   std::mutex mutex;
-  std::map<Key, std::shared_ptr<const std::vector<View>>> kept;
+  std::map<ReconstructionOptions, std::shared_ptr<const std::vector<View>>> kept;  // any field moves eyes or images
 };
 
 struct ExpectedSurfaceMaker::Parts {
@@ -148,13 +143,9 @@ ExpectedSurfaceMaker::Rig ExpectedSurfaceMaker::Eyes(const ReconstructionOptions
 // robot from the same eyes on every request, only the objects round it change.
 std::shared_ptr<const std::vector<ExpectedSurfaceMaker::View>> ExpectedSurfaceMaker::RobotViews(
     const ReconstructionOptions& o, const Rig& rig, bool keep) const {
-  // Every field of ReconstructionOptions: any of them moves the eyes or the images.
-  const auto key = std::make_tuple(o.voxel_m, o.truncation_voxels, o.min_truncation_m, o.azimuths, o.arc_deg,
-                                   o.arc_center_deg, o.distance_m, o.eye_height_m, o.pixels_per_voxel,
-                                   o.fov_horizontal_deg);
   {
     std::lock_guard lock(parts_->views->mutex);
-    if (auto it = parts_->views->kept.find(key); it != parts_->views->kept.end()) return it->second;
+    if (auto it = parts_->views->kept.find(o); it != parts_->views->kept.end()) return it->second;
   }
   auto views = std::make_shared<std::vector<View>>();
   for (const Iso3& T_base_camera : rig.T_base_cameras) {
@@ -164,7 +155,7 @@ std::shared_ptr<const std::vector<ExpectedSurfaceMaker::View>> ExpectedSurfaceMa
   }
   if (keep) {  // two requests may have rendered the same rig at once: the first one kept wins
     std::lock_guard lock(parts_->views->mutex);
-    return parts_->views->kept.emplace(key, views).first->second;
+    return parts_->views->kept.emplace(o, views).first->second;
   }
   return views;
 }
@@ -188,7 +179,8 @@ Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const ReconstructionOptions& o, 
 // to the other objects.
 TriangleMesh ExpectedSurfaceMaker::RobotPart(const TriangleMesh& fused, const PointIndex* context) const {
   const float floor_z = std::min(0.0f, parts_->box.min.z());
-  return KeepTriangles(fused, [&](const Vec3f& c) {
+  return KeepTriangles(fused, [&](const Triangle& t) {
+    const Vec3f c = Centroid(fused, t);
     float limit_sq = (c.z() - floor_z) * (c.z() - floor_z);
     std::uint32_t i;
     float sq;
@@ -232,7 +224,8 @@ TriangleMesh ExpectedSurfaceMaker::Context(const TriangleMesh& scene_world, cons
   base.Append(scene_world, T_world_base.inverse());
   const float clear_sq = static_cast<float>(clearance_m * clearance_m);
   const Aabb near_robot = parts_->box.Grown(static_cast<float>(clearance_m));
-  return KeepTriangles(base, [&](const Vec3f& c) {
+  return KeepTriangles(base, [&](const Triangle& t) {
+    const Vec3f c = Centroid(base, t);
     if (!near_robot.Contains(c)) return true;
     std::uint32_t i;
     float sq;

@@ -9,6 +9,7 @@
 // Built once per robot, joint state and voxel size.
 #pragma once
 
+#include <compare>
 #include <cstdint>
 #include <memory>
 #include <vector>
@@ -37,6 +38,7 @@ struct ReconstructionOptions {
   // robot's distance (finer costs time and changes nothing: the TSDF averages within a voxel).
   double pixels_per_voxel = 2.0;
   double fov_horizontal_deg = 75.0;
+  auto operator<=>(const ReconstructionOptions&) const = default;  // field by field (caches key on it)
 };
 
 // Makes expected surfaces of one posed robot: the ray caster of the robot on its floor and the

@@ -33,15 +33,6 @@ struct Candidate {
   int iterations = 0;
 };
 
-// Every k-th point so that at most `limit` remain (deterministic, spread over the model), in
-// spatial order for the ICP's nearest-neighbour queries.
-PointCloud Thin(const PointCloud& cloud, std::size_t limit) {
-  std::vector<std::uint32_t> keep;
-  const std::size_t stride = std::max<std::size_t>(1, (cloud.size() + limit - 1) / std::max<std::size_t>(1, limit));
-  for (std::size_t i = 0; i < cloud.size(); i += stride) keep.push_back(static_cast<std::uint32_t>(i));
-  return SpatiallyOrdered(cloud.Subset(keep));
-}
-
 double Yaw(const Iso3& T) { return std::atan2(T.linear()(1, 0), T.linear()(0, 0)); }
 
 std::vector<Iso3> Hypotheses(const Iso3& seed, const ArrefIcpParams& p, int position_steps) {
@@ -129,15 +120,15 @@ Result<Candidate> RefineForWalk(const MethodInput& in, const PointCloud& all_rou
                                 const Candidate& best, PointCloud* fitted, int* walk_out,
                                 std::vector<std::string>* stages) {
   const ArrefIcpParams& p = in.options.arref_icp;
-  std::vector<PointCloud> surfaces;  // the walks' surfaces, thinned as the all-round one
+  std::vector<std::shared_ptr<const PointCloud>> surfaces;  // the walks' surfaces, thinned as the all-round one
   for (int walk = 0; walk < RobotSide::kWalks; ++walk) {
-    auto surface = in.robot->Expected(in.voxel_m, walk);  // built once, then cached
+    auto surface = in.robot->Expected(in.voxel_m, walk, p.fine_points);  // built once, then cached
     if (!surface.ok()) return surface.status().WithContext("arref-icp");
-    surfaces.push_back(Thin(**surface, p.fine_points));
+    surfaces.push_back(*surface);
   }
   std::vector<double> d(surfaces.size());
   tbb::parallel_for(std::size_t{0}, surfaces.size(), [&](std::size_t w) {
-    d[w] = MedianPlaneDistance(surfaces[w], target, best.T_world_base, 0.03, 0.5);
+    d[w] = MedianPlaneDistance(*surfaces[w], target, best.T_world_base, 0.03, 0.5);
   });
   double best_d = MedianPlaneDistance(all_round, target, best.T_world_base, 0.03, 0.5);
   int best_walk = -1;
@@ -147,7 +138,7 @@ Result<Candidate> RefineForWalk(const MethodInput& in, const PointCloud& all_rou
   }
   *walk_out = best_walk;
   if (best_walk < 0) return best;
-  *fitted = std::move(surfaces[best_walk]);
+  *fitted = *surfaces[best_walk];
   stages->push_back(fmt::format("walk-{}", best_walk));
   return Polish(*fitted, target, best, p);
 }
@@ -164,7 +155,7 @@ Candidate RefineInContext(const MethodInput& in, int walk, const TargetCloud& ta
     stages->push_back("in-context-skipped");
     return best;
   }
-  *fitted = Thin(*surface, in.options.arref_icp.fine_points);
+  *fitted = Thinned(*surface, in.options.arref_icp.fine_points);
   stages->push_back("in-context");
   return Polish(*fitted, target, best, in.options.arref_icp);
 }
@@ -175,7 +166,7 @@ Candidate RefineInContext(const MethodInput& in, int walk, const TargetCloud& ta
 Candidate ExactIfCloser(const MethodInput& in, const PointCloud& expected_fine, const TargetCloud& target,
                         const Candidate& best, std::vector<std::string>* stages) {
   const ArrefIcpParams& p = in.options.arref_icp;
-  const PointCloud exact_fine = Thin(VisiblePoints(in.model_base), p.fine_points);
+  const PointCloud exact_fine = in.robot ? *in.robot->Visible(p.fine_points) : Thinned(VisiblePoints(in.model_base), p.fine_points);
   const Candidate exact = Polish(exact_fine, target, best, p);
   const double d_expected = MedianPlaneDistance(expected_fine, target, best.T_world_base, 0.03, 0.5);
   const double d_exact = MedianPlaneDistance(exact_fine, target, exact.T_world_base, 0.03, 0.5);
@@ -187,6 +178,20 @@ Candidate ExactIfCloser(const MethodInput& in, const PointCloud& expected_fine, 
   }
   stages->push_back("fitted-expected-surface");
   return best;
+}
+
+// The model points fitted, coarse and fine: the robot as the headset would mesh it when known,
+// else its exact surface, visible parts only. Cached by the robot when it has them.
+std::pair<std::shared_ptr<const PointCloud>, std::shared_ptr<const PointCloud>> FittedModel(const MethodInput& in) {
+  const ArrefIcpParams& p = in.options.arref_icp;
+  if (in.robot && in.model_expected) {
+    auto coarse = in.robot->Expected(in.voxel_m, -1, p.coarse_points);
+    auto fine = in.robot->Expected(in.voxel_m, -1, p.fine_points);
+    if (coarse.ok() && fine.ok()) return {*coarse, *fine};
+  }
+  const PointCloud visible = in.model_expected ? *in.model_expected : VisiblePoints(in.model_base);
+  return {std::make_shared<const PointCloud>(Thinned(visible, p.coarse_points)),
+          std::make_shared<const PointCloud>(Thinned(visible, p.fine_points))};
 }
 
 // Every yaw round the seed, and when none fits well a grid of positions too, each given a
@@ -217,9 +222,9 @@ Result<RegistrationOutput> RegisterArrefIcp(const MethodInput& in) {
   if (p.yaw_hypotheses < 1 || p.height_offsets_m.empty() || p.refine_top < 1 || p.position_steps < 0)
     return Status::InvalidArgument("arref-icp: yaw hypotheses, heights and refine_top must be >= 1");
   // The robot as the headset meshes it when known; else its exact surface, visible parts only.
-  const PointCloud visible = in.model_expected ? *in.model_expected : VisiblePoints(in.model_base);
-  const PointCloud coarse = Thin(visible, p.coarse_points);
-  const PointCloud fine = Thin(visible, p.fine_points);
+  const auto [coarse_kept, fine_kept] = FittedModel(in);
+  const PointCloud& coarse = *coarse_kept;
+  const PointCloud& fine = *fine_kept;
   std::optional<TargetCloud> own_target;
   if (!in.scene_target) own_target.emplace(in.scene_world);
   const TargetCloud& target = in.scene_target ? *in.scene_target : *own_target;

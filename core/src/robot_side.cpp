@@ -6,6 +6,7 @@
 #include <cmath>
 
 #include "arref/model_reconstruction.h"
+#include "arref/model_visibility.h"
 #include "arref/pipeline.h"
 
 namespace arref {
@@ -40,23 +41,40 @@ Result<std::shared_ptr<const RobotSide>> RobotSide::Create(const RobotModel& rob
   return std::shared_ptr<const RobotSide>(new RobotSide(std::move(*mesh), std::move(*cloud), seed));
 }
 
-Result<std::shared_ptr<const PointCloud>> RobotSide::Expected(double voxel_m, int walk) const {
+Result<std::shared_ptr<const PointCloud>> RobotSide::Expected(double voxel_m, int walk, std::size_t thinned_to) const {
   ARREF_RETURN_IF_ERROR(CheckWalk(walk));
   // Meshes a fraction of a millimetre apart fuse alike.
-  const std::pair<long, int> key{std::lround(voxel_m * 1000), walk};
+  const ExpectedKey key{std::lround(voxel_m * 1000), walk, thinned_to};
   // Built under the lock: concurrent requests for the same voxel wait for one build.
   std::lock_guard lock(mutex_);
+  return ExpectedLocked(key);
+}
+
+Result<std::shared_ptr<const PointCloud>> RobotSide::ExpectedLocked(const ExpectedKey& key) const {
   if (auto it = expected_.find(key); it != expected_.end()) return it->second;
+  const auto [voxel_mm, walk, thinned_to] = key;
+  if (thinned_to > 0) {  // thinned from the whole surface, once
+    auto whole = ExpectedLocked({voxel_mm, walk, 0});
+    if (!whole.ok()) return whole.status();
+    return expected_.emplace(key, std::make_shared<const PointCloud>(Thinned(**whole, thinned_to))).first->second;
+  }
   const auto t0 = std::chrono::steady_clock::now();
   auto maker = Maker();
   if (!maker.ok()) return maker.status();
-  auto cloud = (*maker)->Make(WalkOptions(key.first / 1000.0, walk), samples_.size());
+  auto cloud = (*maker)->Make(WalkOptions(voxel_mm / 1000.0, walk), samples_.size());
   if (!cloud.ok()) return cloud.status();
   auto shared = std::make_shared<const PointCloud>(std::move(*cloud));
-  spdlog::debug("expected robot surface at {} mm voxels, walk {}: {} points in {:.0f} ms", key.first, walk, shared->size(),
+  spdlog::debug("expected robot surface at {} mm voxels, walk {}: {} points in {:.0f} ms", voxel_mm, walk, shared->size(),
                 std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
   expected_.emplace(key, shared);
   return shared;
+}
+
+std::shared_ptr<const PointCloud> RobotSide::Visible(std::size_t thinned_to) const {
+  std::lock_guard lock(mutex_);
+  auto& kept = visible_[thinned_to];
+  if (!kept) kept = std::make_shared<const PointCloud>(Thinned(VisiblePoints(samples_), thinned_to));
+  return kept;
 }
 
 Result<std::shared_ptr<const ExpectedSurfaceMaker>> RobotSide::Maker() const {

@@ -57,6 +57,14 @@ PointCloud SpatiallyOrdered(const PointCloud& cloud, double cell_m) {
   return cloud.Subset(order);
 }
 
+PointCloud Thinned(const PointCloud& cloud, std::size_t limit) {
+  if (limit == 0) return cloud;
+  std::vector<std::uint32_t> keep;
+  const std::size_t stride = std::max<std::size_t>(1, (cloud.size() + limit - 1) / limit);
+  for (std::size_t i = 0; i < cloud.size(); i += stride) keep.push_back(static_cast<std::uint32_t>(i));
+  return SpatiallyOrdered(cloud.Subset(keep));
+}
+
 PointCloud VoxelDownsample(const PointCloud& cloud, double leaf_m) {
   if (leaf_m <= 0.0 || cloud.empty()) return cloud;
   struct Cell { Vec3f sum = Vec3f::Zero(); Vec3f normal = Vec3f::Zero(); int count = 0; };

@@ -112,7 +112,7 @@ Status TsdfVolume::AllocateBand(const PinholeCamera& camera, const Iso3& T_volum
         if (k == last) continue;
         last = k;
         // Read-only lookups here, in parallel: after the first views nearly every block is there.
-        if (!index_.count(k) && (!near_only_ || near_.count(k))) rows[v].push_back(b);
+        if ((!near_only_ || near_.count(k)) && !index_.count(k)) rows[v].push_back(b);
       }
     }
   });

@@ -9,6 +9,7 @@
 #include <optional>
 #include <string>
 #include <string_view>
+#include <tuple>
 #include <vector>
 
 #include "arref/geometry.h"
@@ -72,9 +73,12 @@ class RobotSide {
                                                          std::size_t samples, std::uint64_t seed);
   const PointCloud& samples() const { return samples_; }
   // Cached per millimetre of voxel size and walk; thread-safe. walk -1: all round; k in
-  // [0, kWalks): a 220 degree arc centred at k * 360 / kWalks degrees.
+  // [0, kWalks): a 220 degree arc centred at k * 360 / kWalks degrees. thinned_to > 0: at most
+  // that many of its points (Thinned), as a method fits them.
   static constexpr int kWalks = 8;
-  Result<std::shared_ptr<const PointCloud>> Expected(double voxel_m, int walk = -1) const;
+  Result<std::shared_ptr<const PointCloud>> Expected(double voxel_m, int walk = -1, std::size_t thinned_to = 0) const;
+  // The samples a person can see (VisiblePoints), Thinned; cached, thread-safe.
+  std::shared_ptr<const PointCloud> Visible(std::size_t thinned_to) const;
   // The same with the objects mapped round the robot, from the headset's mesh with the robot
   // at T_world_base (ExpectedSurfaceMaker::MakeInContext). Made anew on every call.
   Result<PointCloud> ExpectedInContext(double voxel_m, int walk, const TriangleMesh& scene_world,
@@ -82,13 +86,16 @@ class RobotSide {
 
  private:
   RobotSide(TriangleMesh mesh_base, PointCloud samples, std::uint64_t seed);
+  using ExpectedKey = std::tuple<long, int, std::size_t>;  // voxel in mm, walk, thinned_to
+  Result<std::shared_ptr<const PointCloud>> ExpectedLocked(const ExpectedKey& key) const;  // under mutex_
   Result<std::shared_ptr<const ExpectedSurfaceMaker>> Maker() const;  // under mutex_
   TriangleMesh mesh_base_;
   PointCloud samples_;
   std::uint64_t seed_;
   mutable std::mutex mutex_;
   mutable std::shared_ptr<const ExpectedSurfaceMaker> maker_;  // made on first use
-  mutable std::map<std::pair<long, int>, std::shared_ptr<const PointCloud>> expected_;
+  mutable std::map<ExpectedKey, std::shared_ptr<const PointCloud>> expected_;
+  mutable std::map<std::size_t, std::shared_ptr<const PointCloud>> visible_;
 };
 
 // One request: crop, sample, optionally resample, register, measure. With a RobotSide,

@@ -17,6 +17,10 @@ PointCloud SampleSurface(const TriangleMesh& mesh, std::size_t n, std::uint64_t 
 // an ICP iteration over 5,000 points took about 10 % less time (bench/icp_benchmark.cpp).
 PointCloud SpatiallyOrdered(const PointCloud& cloud, double cell_m = 0.1);
 
+// Every k-th point so that at most `limit` remain (deterministic, spread over the cloud), spatially
+// ordered; limit 0 keeps every point in its order.
+PointCloud Thinned(const PointCloud& cloud, std::size_t limit);
+
 // One point per occupied voxel (the centroid of its points; normals averaged).
 PointCloud VoxelDownsample(const PointCloud& cloud, double leaf_m);
 

@@ -131,22 +131,33 @@ Status TsdfVolume::AllocateBand(const PinholeCamera& camera, const Iso3& T_volum
 void TsdfVolume::UpdateBlock(Block& block, const PinholeCamera& camera, const Iso3& T_camera_volume,
                              const RangeImage& range, const std::vector<float>& incidence) const {
   const double v = options_.voxel_m;
-  const double trunc = options_.truncation_m;
   const Vec3 origin = T_camera_volume * (block.index.cast<double>() * (B * v));
   const Eigen::Matrix3d step = T_camera_volume.linear() * v;
   const Vec3 center = origin + step * Vec3::Constant(0.5 * (B - 1));
   if (center.z() < -0.87 * B * v) return;  // wholly behind the camera
+  if (options_.single_precision)
+    UpdateVoxels<float>(block, camera, origin.cast<float>(), step.cast<float>(), range, incidence);
+  else
+    UpdateVoxels<double>(block, camera, origin, step, range, incidence);
+}
+
+template <class Scalar>
+void TsdfVolume::UpdateVoxels(Block& block, const PinholeCamera& camera, const Eigen::Matrix<Scalar, 3, 1>& origin,
+                              const Eigen::Matrix<Scalar, 3, 3>& step, const RangeImage& range,
+                              const std::vector<float>& incidence) const {
+  using Vec = Eigen::Matrix<Scalar, 3, 1>;
+  const auto trunc = static_cast<Scalar>(options_.truncation_m);
   for (int z = 0; z < B; ++z)
     for (int y = 0; y < B; ++y)
       for (int x = 0; x < B; ++x) {
-        const Vec3 p = origin + step * Vec3(x, y, z);
+        const Vec p = origin + step * Vec(x, y, z);
         const int pixel = camera.PixelOf(p);
         if (pixel < 0 || range[pixel] <= 0) continue;
         // Distance along the ray times the incidence cosine: distance to the surface's plane.
-        const double sdf = (range[pixel] - p.norm()) * std::max(0.1f, incidence[pixel]);
+        const Scalar sdf = (range[pixel] - p.norm()) * std::max(0.1f, incidence[pixel]);
         if (sdf < -trunc) continue;  // hidden behind the measured surface: no information
         Voxel& vox = block.voxels[LocalIndex(x, y, z)];
-        const float d = static_cast<float>(std::min(1.0, sdf / trunc));
+        const auto d = static_cast<float>(std::min(Scalar(1), sdf / trunc));
         vox.d = (vox.d * vox.w + d) / (vox.w + 1.0f);
         vox.w = std::min(vox.w + 1.0f, kMaxWeight);
       }

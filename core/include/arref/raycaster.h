@@ -21,11 +21,12 @@ struct PinholeCamera {
   double cy() const { return 0.5 * height; }
   Vec3 RayDirection(int u, int v) const;  // unit, camera frame
   // Pixel index hit by a camera-frame point, or -1 when behind the camera or off the image.
-  // Inline: TSDF fusion calls it for every voxel of every view.
-  int PixelOf(const Vec3& p) const {
-    if (p.z() <= 1e-6) return -1;
-    const double u = focal_px * p.x() / p.z() + cx();
-    const double v = focal_px * p.y() / p.z() + cy();
+  // Inline and in float too: TSDF fusion calls it for every voxel of every view.
+  template <class Scalar>
+  int PixelOf(const Eigen::Matrix<Scalar, 3, 1>& p) const {
+    if (p.z() <= Scalar(1e-6)) return -1;
+    const Scalar u = static_cast<Scalar>(focal_px) * p.x() / p.z() + static_cast<Scalar>(cx());
+    const Scalar v = static_cast<Scalar>(focal_px) * p.y() / p.z() + static_cast<Scalar>(cy());
     if (!(u >= 0 && v >= 0 && u < width && v < height)) return -1;
     return static_cast<int>(v) * width + static_cast<int>(u);
   }

@@ -25,6 +25,9 @@ struct TsdfOptions {
   // volume's constructor, which reads them).
   const std::vector<Vec3f>* near_points = nullptr;
   double near_margin_m = 0.0;
+  // The voxel update in single precision: about a fifth faster, and a voxel is millimetres
+  // (float resolves micrometres at 10 m), but rounding differs from the double one's.
+  bool single_precision = false;
   std::size_t max_blocks = 400000;  // ~1.6 GB of voxels: beyond that the options are unreasonable
 };
 
@@ -66,6 +69,10 @@ class TsdfVolume {
   Eigen::Vector3i BlockOf(const Vec3& p) const;
   void MarkNearBlocks(const std::vector<Vec3f>& points);
   Status AllocateBand(const PinholeCamera& camera, const Iso3& T_volume_camera, const RangeImage& range);
+  template <class Scalar>
+  void UpdateVoxels(Block& block, const PinholeCamera& camera, const Eigen::Matrix<Scalar, 3, 1>& origin,
+                    const Eigen::Matrix<Scalar, 3, 3>& step, const RangeImage& range,
+                    const std::vector<float>& incidence) const;
   void UpdateBlock(Block& block, const PinholeCamera& camera, const Iso3& T_camera_volume,
                    const RangeImage& range, const std::vector<float>& incidence) const;
   // For each block, its 27 neighbours (self at 13) as indices into blocks_, -1 if absent.

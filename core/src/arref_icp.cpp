@@ -11,6 +11,7 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <numbers>
 #include <optional>
@@ -83,13 +84,22 @@ std::vector<Candidate> Distinct(std::vector<Candidate> all, std::size_t count) {
   return out;
 }
 
-// Correspondence distances of the refinement: from capturing a coarse pose's basin down to the
-// noise of a headset mesh. A pose already refined once is only polished (the last two).
-const std::vector<double> kRefineLevels = {0.08, 0.04, 0.02, 0.012};
+// Correspondence distances of the refinement: from capturing a coarse pose's basin (approach,
+// on fewer points: the basin needs no detail) down to the noise of a headset mesh (polish). A
+// pose already refined once is only polished.
+const std::vector<double> kApproachLevels = {0.08, 0.04};
 const std::vector<double> kPolishLevels = {0.02, 0.012};
 
+Candidate Approach(const PointCloud& approach, const TargetCloud& target, const Candidate& start) {
+  IcpSettings s;
+  s.yaw_only = true;
+  s.max_iterations = 15;
+  const IcpStats st = AlignCoarseToFine(approach, target, start.T_world_base, kApproachLevels, s);
+  return {st.T_target_source, start.score, start.iterations + st.iterations};
+}
+
 Candidate Refine(const PointCloud& fine, const TargetCloud& target, const Candidate& start, const ArrefIcpParams& p,
-                 const std::vector<double>& levels = kRefineLevels) {
+                 const std::vector<double>& levels) {
   IcpSettings s;
   s.yaw_only = true;
   s.max_iterations = 15;
@@ -182,16 +192,21 @@ Candidate ExactIfCloser(const MethodInput& in, const PointCloud& expected_fine, 
 
 // The model points fitted, coarse and fine: the robot as the headset would mesh it when known,
 // else its exact surface, visible parts only. Cached by the robot when it has them.
-std::pair<std::shared_ptr<const PointCloud>, std::shared_ptr<const PointCloud>> FittedModel(const MethodInput& in) {
+std::array<std::shared_ptr<const PointCloud>, 3> FittedModel(const MethodInput& in) {
   const ArrefIcpParams& p = in.options.arref_icp;
+  const std::array<std::size_t, 3> counts = {p.coarse_points, p.approach_points, p.fine_points};
+  std::array<std::shared_ptr<const PointCloud>, 3> out;
   if (in.robot && in.model_expected) {
-    auto coarse = in.robot->Expected(in.voxel_m, -1, p.coarse_points);
-    auto fine = in.robot->Expected(in.voxel_m, -1, p.fine_points);
-    if (coarse.ok() && fine.ok()) return {*coarse, *fine};
+    for (std::size_t i = 0; i < counts.size(); ++i) {
+      auto kept = in.robot->Expected(in.voxel_m, -1, counts[i]);
+      if (!kept.ok()) break;
+      out[i] = *kept;
+    }
+    if (out.back()) return out;
   }
   const PointCloud visible = in.model_expected ? *in.model_expected : VisiblePoints(in.model_base);
-  return {std::make_shared<const PointCloud>(Thinned(visible, p.coarse_points)),
-          std::make_shared<const PointCloud>(Thinned(visible, p.fine_points))};
+  for (std::size_t i = 0; i < counts.size(); ++i) out[i] = std::make_shared<const PointCloud>(Thinned(visible, counts[i]));
+  return out;
 }
 
 // Every yaw round the seed, and when none fits well a grid of positions too, each given a
@@ -222,9 +237,10 @@ Result<RegistrationOutput> RegisterArrefIcp(const MethodInput& in) {
   if (p.yaw_hypotheses < 1 || p.height_offsets_m.empty() || p.refine_top < 1 || p.position_steps < 0)
     return Status::InvalidArgument("arref-icp: yaw hypotheses, heights and refine_top must be >= 1");
   // The robot as the headset meshes it when known; else its exact surface, visible parts only.
-  const auto [coarse_kept, fine_kept] = FittedModel(in);
-  const PointCloud& coarse = *coarse_kept;
-  const PointCloud& fine = *fine_kept;
+  const auto model = FittedModel(in);
+  const PointCloud& coarse = *model[0];
+  const PointCloud& approach = *model[1];
+  const PointCloud& fine = *model[2];
   std::optional<TargetCloud> own_target;
   if (!in.scene_target) own_target.emplace(in.scene_world);
   const TargetCloud& target = in.scene_target ? *in.scene_target : *own_target;
@@ -235,7 +251,7 @@ Result<RegistrationOutput> RegisterArrefIcp(const MethodInput& in) {
   timer.Step("pose-search");
   std::vector<Candidate> refined;
   for (const auto& c : Distinct(candidates, static_cast<std::size_t>(p.refine_top)))
-    refined.push_back(Refine(fine, target, c, p));
+    refined.push_back(Refine(fine, target, Approach(approach, target, c), p, kPolishLevels));
   refined = Distinct(refined, 2);
   out.stages.push_back("arref-icp");
   timer.Step("refine");

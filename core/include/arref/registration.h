@@ -32,6 +32,7 @@ struct ArrefIcpParams {
   int position_steps = 1;          // grid of (2 * steps + 1)^2 positions
   double expand_below_score = 0.35;  // widen the search when the best coarse score is lower
   std::size_t coarse_points = 250;
+  std::size_t approach_points = 600;  // the refinement's coarse levels (arref_icp.cpp)
   std::size_t fine_points = 2000;
   int refine_top = 2;
   bool final_six_dof = false;      // a last 6-DoF step would absorb tilt of the headset world (robots stand upright)

@@ -190,8 +190,9 @@ Candidate ExactIfCloser(const MethodInput& in, const PointCloud& expected_fine, 
   return best;
 }
 
-// The model points fitted, coarse and fine: the robot as the headset would mesh it when known,
-// else its exact surface, visible parts only. Cached by the robot when it has them.
+// The model points fitted, thinned for the pose search, the approach and the polish: the robot
+// as the headset would mesh it when known, else its exact surface, visible parts only. Cached by
+// the robot when it has them.
 std::array<std::shared_ptr<const PointCloud>, 3> FittedModel(const MethodInput& in) {
   const ArrefIcpParams& p = in.options.arref_icp;
   const std::array<std::size_t, 3> counts = {p.coarse_points, p.approach_points, p.fine_points};
@@ -236,7 +237,6 @@ Result<RegistrationOutput> RegisterArrefIcp(const MethodInput& in) {
     return Status::FailedPrecondition("arref-icp needs normals on model and scene points");
   if (p.yaw_hypotheses < 1 || p.height_offsets_m.empty() || p.refine_top < 1 || p.position_steps < 0)
     return Status::InvalidArgument("arref-icp: yaw hypotheses, heights and refine_top must be >= 1");
-  // The robot as the headset meshes it when known; else its exact surface, visible parts only.
   const auto model = FittedModel(in);
   const PointCloud& coarse = *model[0];
   const PointCloud& approach = *model[1];

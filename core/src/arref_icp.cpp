@@ -176,7 +176,10 @@ Candidate RefineInContext(const MethodInput& in, int walk, const TargetCloud& ta
 Candidate ExactIfCloser(const MethodInput& in, const PointCloud& expected_fine, const TargetCloud& target,
                         const Candidate& best, std::vector<std::string>* stages) {
   const ArrefIcpParams& p = in.options.arref_icp;
-  const PointCloud exact_fine = in.robot ? *in.robot->Visible(p.fine_points) : Thinned(VisiblePoints(in.model_base), p.fine_points);
+  // Kept by the robot when there is one: no copy per request.
+  const auto exact_kept = in.robot ? in.robot->Visible(p.fine_points)
+                                   : std::make_shared<const PointCloud>(Thinned(VisiblePoints(in.model_base), p.fine_points));
+  const PointCloud& exact_fine = *exact_kept;
   const Candidate exact = Polish(exact_fine, target, best, p);
   const double d_expected = MedianPlaneDistance(expected_fine, target, best.T_world_base, 0.03, 0.5);
   const double d_exact = MedianPlaneDistance(exact_fine, target, exact.T_world_base, 0.03, 0.5);
@@ -193,17 +196,17 @@ Candidate ExactIfCloser(const MethodInput& in, const PointCloud& expected_fine, 
 // The model points fitted, thinned for the pose search, the approach and the polish: the robot
 // as the headset would mesh it when known, else its exact surface, visible parts only. Cached by
 // the robot when it has them.
-std::array<std::shared_ptr<const PointCloud>, 3> FittedModel(const MethodInput& in) {
+Result<std::array<std::shared_ptr<const PointCloud>, 3>> FittedModel(const MethodInput& in) {
   const ArrefIcpParams& p = in.options.arref_icp;
   const std::array<std::size_t, 3> counts = {p.coarse_points, p.approach_points, p.fine_points};
   std::array<std::shared_ptr<const PointCloud>, 3> out;
-  if (in.robot && in.model_expected) {
+  if (in.robot && in.model_expected) {  // the all-round surface, thinned once and kept by the robot
     for (std::size_t i = 0; i < counts.size(); ++i) {
       auto kept = in.robot->Expected(in.voxel_m, -1, counts[i]);
-      if (!kept.ok()) break;
+      if (!kept.ok()) return kept.status().WithContext("arref-icp");
       out[i] = *kept;
     }
-    if (out.back()) return out;
+    return out;
   }
   const PointCloud visible = in.model_expected ? *in.model_expected : VisiblePoints(in.model_base);
   for (std::size_t i = 0; i < counts.size(); ++i) out[i] = std::make_shared<const PointCloud>(Thinned(visible, counts[i]));
@@ -237,7 +240,9 @@ Result<RegistrationOutput> RegisterArrefIcp(const MethodInput& in) {
     return Status::FailedPrecondition("arref-icp needs normals on model and scene points");
   if (p.yaw_hypotheses < 1 || p.height_offsets_m.empty() || p.refine_top < 1 || p.position_steps < 0)
     return Status::InvalidArgument("arref-icp: yaw hypotheses, heights and refine_top must be >= 1");
-  const auto model = FittedModel(in);
+  const auto model_or = FittedModel(in);
+  if (!model_or.ok()) return model_or.status();
+  const auto& model = *model_or;
   const PointCloud& coarse = *model[0];
   const PointCloud& approach = *model[1];
   const PointCloud& fine = *model[2];

@@ -186,6 +186,27 @@ TEST(CellSimulator, FusedMeshLiesOnTheTruthAndFacesFreeSpace) {
   EXPECT_GT(static_cast<double>(agree) / total, 0.9) << agree << " of " << total;
 }
 
+// The head-tracking knob: one number for position and orientation (the defaults' pair at
+// 4 mm), and a fused mesh that strays from the truth as it grows.
+TEST(CellSimulator, PoseJitterBendsTheMesh) {
+  ScanOptions scan;
+  SetPoseJitter(&scan, 0.004);
+  EXPECT_DOUBLE_EQ(scan.pose_jitter_m, ScanOptions{}.pose_jitter_m);
+  EXPECT_NEAR(scan.pose_jitter_deg, ScanOptions{}.pose_jitter_deg, 1e-12);
+  const auto median_mm = [](double jitter_m) {
+    SimOptions options = SmallOptions();
+    SetPoseJitter(&options.scan, jitter_m);
+    auto cell = SimulateCell(BuiltinRobot(), options, 1);
+    if (!cell.ok()) throw std::runtime_error(cell.status().ToString());
+    const PointIndex truth(TruthSamplesNear(*cell, 3.5).points);
+    return 1000 * Percentile(DistancesTo(truth, MergedWorld(*cell).vertices), 0.5);
+  };
+  const double still = median_mm(0.0), shaky = median_mm(0.02);
+  RecordProperty("median_vertex_to_truth_um_still", static_cast<int>(std::lround(still * 1000)));
+  RecordProperty("median_vertex_to_truth_um_shaky", static_cast<int>(std::lround(shaky * 1000)));
+  EXPECT_GT(shaky, still + 2.0) << "2 cm / 1.5 deg of head-tracking error should move the mesh by millimetres";
+}
+
 TEST(CellSimulator, PartOfTheRobotIsNeverSeen) {
   const SimulatedCell& cell = SmallCell();
   auto posed = BuiltinRobot().PosedMesh(cell.joints);

@@ -30,6 +30,7 @@ struct BenchArgs {
   bool walk_any_side = false;
   double walk_arc_deg = 0.0;
   double seed_max_offset = 0.0;
+  double pose_jitter = -1;
   std::string only;  // comma-separated subset of sweep, perturb, scenes
   std::string command_line;
 };
@@ -58,10 +59,11 @@ int Run(const BenchArgs& args) {
   config.jobs = args.jobs, config.rng_seed = args.rng_seed;
   config.scene_size = args.scene_size, config.scene_cells = args.scene_cells, config.scene_seeds = args.scene_seeds;
   if (!args.scene_kinds.empty()) config.scene_kinds = args.scene_kinds;
-  config.seed_noise.any_yaw = args.seed_any_yaw;
-  config.seed_noise.max_horizontal_m = args.seed_max_offset;
-  config.walk_any_side = args.walk_any_side;
-  config.walk_arc_deg = args.walk_arc_deg;
+  config.variation.seed_noise.any_yaw = args.seed_any_yaw;
+  config.variation.seed_noise.max_horizontal_m = args.seed_max_offset;
+  config.variation.walk_any_side = args.walk_any_side;
+  config.variation.walk_arc_deg = args.walk_arc_deg;
+  config.variation.pose_jitter_m = args.pose_jitter;
   std::error_code ec;
   std::filesystem::create_directories(config.out_dir, ec);
   if (ec) return Fail(Status::IoError("--out " + config.out_dir + ": " + ec.message()));
@@ -117,6 +119,9 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
   cmd->add_option("--walk-arc", args->walk_arc_deg,
                   "Scenes experiment: the arc the simulated user walks round the robot, deg (default 220)")
       ->check(CLI::Range(30.0, 360.0));
+  cmd->add_option("--pose-jitter", args->pose_jitter,
+                  "Scenes experiment: head-tracking error sigma, m (default 0.004, 0.3 deg; 0: a perfectly tracked headset)")
+      ->check(CLI::Range(0.0, 0.1));
   cmd->add_option("--only", args->only, "Run only these experiments: sweep, perturb, scenes (comma-separated)");
   cmd->callback([args, exit_code, cmd] {
     args->command_line = "arref bench";

@@ -55,10 +55,7 @@ int Run(const SimulateArgs& args) {
   options.seed_noise.any_yaw = args.seed_any_yaw;
   options.seed_noise.max_horizontal_m = args.seed_max_offset;
   if (args.depth_noise >= 0) options.scan.depth_noise_m = args.depth_noise;
-  if (args.pose_jitter >= 0) {  // one knob for both: metres, and the same number in degrees x 0.075
-    options.scan.pose_jitter_m = args.pose_jitter;
-    options.scan.pose_jitter_deg = args.pose_jitter * 75.0;
-  }
+  if (args.pose_jitter >= 0) sim::SetPoseJitter(&options.scan, args.pose_jitter);
 
   auto cell = sim::SimulateCell(*robot, options, args.rng_seed);
   if (!cell.ok()) return Fail(cell.status().WithContext("simulating the cell"));

@@ -239,6 +239,11 @@ Result<TriangleMesh> ScanAndFuse(const CellScene& scene, const SimOptions& optio
 
 }  // namespace
 
+void SetPoseJitter(ScanOptions* scan, double sigma_m) {
+  scan->pose_jitter_m = sigma_m;
+  scan->pose_jitter_deg = sigma_m * 75.0;
+}
+
 SimOptions SmallPreset() {
   SimOptions o;
   o.fusion.triangles_per_m3 = 1000.0;

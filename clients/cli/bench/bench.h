@@ -16,6 +16,14 @@ namespace arref::bench {
 constexpr double kSuccessAddM = 0.010;  // success = ADD <= 10 mm
 constexpr double kWrongAddM = 0.020;    // a result this far off is wrong (issue 5: never OK)
 
+// How the scenes experiment's cells and seeds depart from the simulator's defaults.
+struct CellVariation {
+  sim::SeedNoise seed_noise;
+  bool walk_any_side = false;  // each cell's robot turned at random: the user maps any side of it
+  double walk_arc_deg = 0.0;   // > 0: the arc the simulated user walks (default: the simulator's)
+  double pose_jitter_m = -1;   // >= 0: the head-tracking error (sim::SetPoseJitter; default: the simulator's)
+};
+
 struct Config {
   std::vector<std::string> methods;          // swept (Tables I, II)
   std::vector<std::string> perturb_methods;  // Table III
@@ -30,9 +38,7 @@ struct Config {
   std::string scene_size = "small";
   int scene_cells = 2;  // per kind
   int scene_seeds = 3;  // per cell
-  sim::SeedNoise seed_noise;
-  bool walk_any_side = false;  // each cell's robot turned at random: the user maps any side of it
-  double walk_arc_deg = 0.0;   // > 0: the arc the simulated user walks (default: the simulator's)
+  CellVariation variation;
 };
 
 // A simulated cell with everything a run needs.
@@ -73,8 +79,7 @@ struct Job {
 
 Result<std::vector<Cell>> MakeCells(const RobotModel& robot, const std::vector<std::string>& kinds, const std::string& size,
                                     int cells_per_kind, int seeds_per_cell, std::uint64_t rng_seed,
-                                    const sim::SeedNoise& seed_noise = {}, bool walk_any_side = false,
-                                    double walk_arc_deg = 0.0);
+                                    const CellVariation& variation = {});
 // Runs every job (in parallel when jobs > 1) and returns their runs in order.
 std::vector<Run> Execute(std::vector<Job>& jobs, int parallel_jobs);
 

@@ -93,7 +93,7 @@ double Quantile(std::vector<double> v, double q) {
 
 Result<std::vector<Cell>> MakeCells(const RobotModel& robot, const std::vector<std::string>& kinds, const std::string& size,
                                     int cells_per_kind, int seeds_per_cell, std::uint64_t rng_seed,
-                                    const sim::SeedNoise& seed_noise, bool walk_any_side, double walk_arc_deg) {
+                                    const CellVariation& variation) {
   std::vector<Cell> cells;
   const RegistrationOptions defaults;
   for (const auto& kind : kinds) {
@@ -106,9 +106,10 @@ Result<std::vector<Cell>> MakeCells(const RobotModel& robot, const std::vector<s
       std::mt19937_64 rng(seed);
       options->cell.joints = RandomJoints(robot, rng);
       options->seed_count = seeds_per_cell;
-      options->seed_noise = seed_noise;
-      if (walk_arc_deg > 0) options->scan.path_arc_deg = walk_arc_deg;
-      if (walk_any_side) options->cell.base_yaw_deg = std::uniform_real_distribution<double>(-180.0, 180.0)(rng);
+      options->seed_noise = variation.seed_noise;
+      if (variation.walk_arc_deg > 0) options->scan.path_arc_deg = variation.walk_arc_deg;
+      if (variation.pose_jitter_m >= 0) sim::SetPoseJitter(&options->scan, variation.pose_jitter_m);
+      if (variation.walk_any_side) options->cell.base_yaw_deg = std::uniform_real_distribution<double>(-180.0, 180.0)(rng);
       auto sim = sim::SimulateCell(robot, *options, seed);
       if (!sim.ok()) return sim.status().WithContext("bench cell " + kind + " " + std::to_string(i));
       Cell cell{kind, size, i, std::move(*sim), {}, {}};

@@ -203,8 +203,7 @@ Status ScenesExperiment(const RobotModel& robot, const Config& config, Tables* t
       config.quick ? std::vector<std::string>{"default", "near-table"} : config.scene_kinds;
   const std::string& size = config.scene_size;
   auto cells = MakeCells(robot, kinds, size, config.quick ? 1 : config.scene_cells, config.quick ? 2 : config.scene_seeds,
-                         config.rng_seed + 13, config.seed_noise, config.walk_any_side,
-                         config.walk_arc_deg);
+                         config.rng_seed + 13, config.variation);
   if (!cells.ok()) return cells.status();
   std::vector<Job> jobs;
   for (const auto& method : config.scene_methods)

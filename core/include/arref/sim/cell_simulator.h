@@ -45,6 +45,11 @@ struct ScanOptions {
   double pose_jitter_deg = 0.3;     // sigma of the per-view head orientation error
 };
 
+// Head-tracking error as one knob: sigma_m of position, and 75 deg per metre of orientation
+// (the defaults' 0.3 deg at 4 mm). The fused mesh is distorted by it, so it bounds how close
+// any registration can come to the truth (docs/engine.md: 100 % within 10 mm without it).
+void SetPoseJitter(ScanOptions* scan, double sigma_m);
+
 // TSDF fusion of the depth images and extraction of a coarse mesh.
 struct FusionOptions {
   double triangles_per_m3 = 1000.0;  // HoloLens density setting; sets the voxel size when voxel_m == 0

@@ -166,6 +166,7 @@ TEST_F(CliTest, BadInputGivesClearErrorsAndExitCodes) {
       {"register --scene " + base + ".json --seed 0,0,0,0,0,0,1", 3, "cannot read mesh"},
       {"register --seed 0,0,0,0,0,0,1", 2, "--scene"},
       {"register --scene " + base + ".ply --frame enu --seed 0,0,0,0,0,0,1", 2, "enu"},
+      {"bench --out " + base + "-bench --pose-jitter 0.5", 2, "--pose-jitter"},
       {"fly", 2, "subcommand"},
   };
   for (const auto& c : cases) {

@@ -32,8 +32,8 @@ struct ArrefIcpParams {
   int position_steps = 1;          // grid of (2 * steps + 1)^2 positions
   double expand_below_score = 0.35;  // widen the search when the best coarse score is lower
   std::size_t coarse_points = 250;
-  // The refinement's 8 and 4 cm levels (arref_icp.cpp): 600 or 1,000 points saved ~5 ms a
-  // request and lost 5 or 3 of the bench's 192 user-like runs within 10 mm.
+  // The refinement's 8 and 4 cm levels (arref_icp.cpp). 600 points saved ~7 ms a request but
+  // lost 5 of the bench's 192 user-like runs within 10 mm (1,000 points: 3).
   std::size_t approach_points = 2000;
   std::size_t fine_points = 2000;
   int refine_top = 2;

@@ -85,8 +85,8 @@ std::vector<Candidate> Distinct(std::vector<Candidate> all, std::size_t count) {
 }
 
 // Correspondence distances of the refinement: from capturing a coarse pose's basin (approach,
-// on fewer points: the basin needs no detail) down to the noise of a headset mesh (polish). A
-// pose already refined once is only polished.
+// on ArrefIcpParams::approach_points) down to the noise of a headset mesh (polish). A pose
+// already refined once is only polished.
 const std::vector<double> kApproachLevels = {0.08, 0.04};
 const std::vector<double> kPolishLevels = {0.02, 0.012};
 

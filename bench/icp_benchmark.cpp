@@ -135,9 +135,11 @@ void BM_NewJointState(benchmark::State& state) {
   }
 }
 
-BENCHMARK(BM_Request)->Arg(1)->Arg(0)->Unit(benchmark::kMillisecond);
-BENCHMARK(BM_NewJointState)->Unit(benchmark::kMillisecond);
-BENCHMARK(BM_ExpectedInContext)->Unit(benchmark::kMillisecond);
+// Wall time, and the CPU time of every thread: their ratio is how many of the cores the step keeps
+// busy (a ratio near the core count leaves nothing for more parallelism to gain).
+BENCHMARK(BM_Request)->Arg(1)->Arg(0)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_NewJointState)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_ExpectedInContext)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ArrefIteration)->ArgsProduct({{2000, 5000}, {1, 2}})->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_PclIteration)->Arg(2000)->Arg(5000)->Unit(benchmark::kMillisecond);
 

@@ -13,6 +13,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <memory>
 #include <numbers>
 #include <optional>
 
@@ -127,7 +128,7 @@ Candidate Polish(const PointCloud& surface, const TargetCloud& target, const Can
 // shape (analysis by synthesis), not by which model parts have scene points nearby: at a
 // walker's height nearly every side is seen at some angle.
 Result<Candidate> RefineForWalk(const MethodInput& in, const PointCloud& all_round, const TargetCloud& target,
-                                const Candidate& best, PointCloud* fitted, int* walk_out,
+                                const Candidate& best, std::shared_ptr<const PointCloud>* fitted, int* walk_out,
                                 std::vector<std::string>* stages) {
   const ArrefIcpParams& p = in.options.arref_icp;
   std::vector<std::shared_ptr<const PointCloud>> surfaces;  // the walks' surfaces, thinned as the all-round one
@@ -148,9 +149,9 @@ Result<Candidate> RefineForWalk(const MethodInput& in, const PointCloud& all_rou
   }
   *walk_out = best_walk;
   if (best_walk < 0) return best;
-  *fitted = *surfaces[best_walk];
+  *fitted = surfaces[best_walk];
   stages->push_back(fmt::format("walk-{}", best_walk));
-  return Polish(*fitted, target, best, p);
+  return Polish(**fitted, target, best, p);
 }
 
 // Objects near the robot (a table 0.2 m from its base) hide parts of it from the walker and
@@ -158,16 +159,16 @@ Result<Candidate> RefineForWalk(const MethodInput& in, const PointCloud& all_rou
 // towards a table, noise-free). The chosen walk's surface is fused again with the mapped objects
 // round the fitted pose, and the pose polished with it.
 Candidate RefineInContext(const MethodInput& in, int walk, const TargetCloud& target, const Candidate& best,
-                          PointCloud* fitted, std::vector<std::string>* stages) {
+                          std::shared_ptr<const PointCloud>* fitted, std::vector<std::string>* stages) {
   auto surface = in.robot->ExpectedInContext(in.voxel_m, walk, *in.scene_mesh_world, best.T_world_base);
   if (!surface.ok()) {  // the fit without the objects stands
     spdlog::warn("arref-icp: no expected surface in context, keeping the fit without it: {}", surface.status().ToString());
     stages->push_back("in-context-skipped");
     return best;
   }
-  *fitted = Thinned(*surface, in.options.arref_icp.fine_points);
+  *fitted = std::make_shared<const PointCloud>(Thinned(*surface, in.options.arref_icp.fine_points));
   stages->push_back("in-context");
-  return Polish(*fitted, target, best, in.options.arref_icp);
+  return Polish(**fitted, target, best, in.options.arref_icp);
 }
 
 // Which surface explains the scene: a fused headset mesh is matched by the expected surface,
@@ -208,7 +209,9 @@ Result<std::array<std::shared_ptr<const PointCloud>, 3>> FittedModel(const Metho
     }
     return out;
   }
-  const PointCloud visible = in.model_expected ? *in.model_expected : VisiblePoints(in.model_base);
+  std::optional<PointCloud> own_visible;  // only without a given surface: no copy of one
+  if (!in.model_expected) own_visible = VisiblePoints(in.model_base);
+  const PointCloud& visible = in.model_expected ? *in.model_expected : *own_visible;
   for (std::size_t i = 0; i < counts.size(); ++i) out[i] = std::make_shared<const PointCloud>(Thinned(visible, counts[i]));
   return out;
 }
@@ -261,7 +264,7 @@ Result<RegistrationOutput> RegisterArrefIcp(const MethodInput& in) {
   out.stages.push_back("arref-icp");
   timer.Step("refine");
   if (in.model_expected) {
-    PointCloud fitted = fine;
+    std::shared_ptr<const PointCloud> fitted = model[2];  // the surface polished last, shared not copied
     int walk = -1;
     if (in.robot && p.select_walk) {
       auto walked = RefineForWalk(in, fine, target, refined.front(), &fitted, &walk, &out.stages);
@@ -273,7 +276,7 @@ Result<RegistrationOutput> RegisterArrefIcp(const MethodInput& in) {
       refined.front() = RefineInContext(in, walk, target, refined.front(), &fitted, &out.stages);
       timer.Step("context");
     }
-    refined.front() = ExactIfCloser(in, fitted, target, refined.front(), &out.stages);
+    refined.front() = ExactIfCloser(in, *fitted, target, refined.front(), &out.stages);
     timer.Step("surface-choice");
   }
   out.T_world_base = refined.front().T_world_base;

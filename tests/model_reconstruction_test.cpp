@@ -88,6 +88,31 @@ TEST(ExpectedSurface, BadOptionsNameTheProblem) {
   EXPECT_NE(r.status().ToString().find("no geometry"), std::string::npos) << r.status().ToString();
 }
 
+// Surfaces made together share the eyes they have in common, and come out as each alone.
+TEST(ExpectedSurface, MadeTogetherAsAlone) {
+  auto maker = ExpectedSurfaceMaker::Create(Box(0.4f, 0.4f, 0.8f), 1);
+  ASSERT_TRUE(maker.ok()) << maker.status().ToString();
+  ReconstructionOptions round, front, left, bad;
+  round.voxel_m = front.voxel_m = left.voxel_m = kVoxel;
+  round.azimuths = 8;                                        // every 45 degrees
+  front.arc_deg = 90, front.azimuths = 3;                    // -45, 0, 45: all three on round's
+  left.arc_deg = 90, left.arc_center_deg = 90, left.azimuths = 5;  // 45 .. 135 by 22.5: three on round's
+  bad.voxel_m = 0;
+  const std::vector<ReconstructionOptions> options = {round, front, bad, left};
+  const std::vector<Result<PointCloud>> together = maker->MakeMany(options, 2000);
+  ASSERT_EQ(together.size(), options.size());
+  ASSERT_FALSE(together[2].ok());
+  EXPECT_NE(together[2].status().ToString().find("voxel"), std::string::npos) << together[2].status().ToString();
+  for (std::size_t i : {0u, 1u, 3u}) {
+    auto alone = maker->Make(options[i], 2000);
+    ASSERT_TRUE(alone.ok() && together[i].ok()) << i;
+    ASSERT_EQ(alone->size(), together[i]->size()) << i;
+    EXPECT_EQ(alone->points, together[i]->points) << i;
+    EXPECT_EQ(alone->normals, together[i]->normals) << i;
+  }
+  EXPECT_NE(together[1]->points, together[3]->points);
+}
+
 // A table top (0.04 m thick, 0.5 m high) between a walker on the +x side and a box robot.
 TriangleMesh TableInFront() {
   TriangleMesh table = Box(0.75f, 1.2f, 0.04f);

@@ -65,6 +65,8 @@ Status ValidateScan(const ScanOptions& s) {
       {"scan.path_radius_m", s.path_radius_m, s.path_radius_m > 0 && s.path_radius_m < 3.5,
        "must be in (0, 3.5) (the floor is 8 m wide)"},
       {"scan.eye_height_m", s.eye_height_m, s.eye_height_m > 0, "must be > 0"},
+      {"scan.path_center_deg", s.path_center_deg, std::isfinite(s.path_center_deg), "must be finite"},
+      {"scan.path_wander_m", s.path_wander_m, s.path_wander_m >= 0 && s.path_wander_m <= 0.5, "must be in [0, 0.5]"},
       {"scan.image_width", s.image_width, s.image_width > 0 && s.image_width <= 4096, "must be in [1, 4096]"},
       {"scan.image_height", s.image_height, s.image_height > 0 && s.image_height <= 4096, "must be in [1, 4096]"},
       {"scan.fov_horizontal_deg", s.fov_horizontal_deg, s.fov_horizontal_deg > 0 && s.fov_horizontal_deg < 180,
@@ -152,9 +154,18 @@ std::vector<View> WalkingPath(const ScanOptions& scan, const Iso3& T_cell_base, 
   std::uniform_real_distribution<double> aim_height(0.5, 0.8);
   std::vector<View> views;
   const double arc = scan.path_arc_deg * kDeg;
+  const double spacing = scan.views == 1 ? 0.0 : arc / (scan.views - 1);
   for (int i = 0; i < scan.views; ++i) {
-    const double theta = scan.views == 1 ? 0.0 : -arc / 2 + arc * i / (scan.views - 1);
-    const Vec3 eye(scan.path_radius_m * std::cos(theta), scan.path_radius_m * std::sin(theta), scan.eye_height_m);
+    double theta = scan.views == 1 ? 0.0 : -arc / 2 + arc * i / (scan.views - 1);
+    double radius = scan.path_radius_m, height = scan.eye_height_m;
+    if (scan.path_wander_m > 0) {  // drawn only then: the default path's views stay as they were
+      std::normal_distribution<double> wander(0.0, scan.path_wander_m);
+      theta += std::uniform_real_distribution<double>(-0.4, 0.4)(rng) * spacing;
+      radius = std::max(0.5, radius + wander(rng));
+      height += wander(rng) / 3;
+    }
+    theta += scan.path_center_deg * kDeg;
+    const Vec3 eye(radius * std::cos(theta), radius * std::sin(theta), height);
     const Vec3 target = T_cell_base * Vec3(0, 0, aim_height(rng));
     const Iso3 believed = LookAt(eye, target);
     views.push_back({believed * RandomJitter(scan, rng), believed});

@@ -133,11 +133,21 @@ ExpectedSurfaceMaker::Rig ExpectedSurfaceMaker::Eyes(const ReconstructionOptions
   const double step = o.arc_deg >= 360 ? 360.0 / o.azimuths : o.arc_deg / std::max(1, o.azimuths - 1);
   const double first = o.arc_deg >= 360 ? 0.0 : -o.arc_deg / 2;
   for (int a = 0; a < o.azimuths; ++a) {
-    const double azimuth = (o.arc_center_deg + first + step * a) * std::numbers::pi / 180;
+    // In [0, 360) degrees: walks whose arcs share an azimuth get the same eye bit for bit
+    // (MakeMany renders it once).
+    double degrees = std::fmod(o.arc_center_deg + first + step * a, 360.0);
+    if (degrees < 0) degrees += 360.0;
+    const double azimuth = degrees * std::numbers::pi / 180;
     rig.T_base_cameras.push_back(
         LookAt(Vec3(o.distance_m * std::cos(azimuth), o.distance_m * std::sin(azimuth), o.eye_height_m), tsdf.crop_center));
   }
   return rig;
+}
+
+ExpectedSurfaceMaker::View ExpectedSurfaceMaker::Render(const Rig& rig, std::size_t eye) const {
+  View view;
+  view.range = parts_->caster.Render(rig.camera, rig.T_base_cameras[eye], rig.max_range, &view.incidence);
+  return view;
 }
 
 // The robot's images from every eye. Kept when `keep`: a refit in context renders the same
@@ -149,11 +159,7 @@ std::shared_ptr<const std::vector<ExpectedSurfaceMaker::View>> ExpectedSurfaceMa
     if (auto it = parts_->views->kept.find(o); it != parts_->views->kept.end()) return it->second;
   }
   auto views = std::make_shared<std::vector<View>>();
-  for (const Iso3& T_base_camera : rig.T_base_cameras) {
-    View view;
-    view.range = parts_->caster.Render(rig.camera, T_base_camera, rig.max_range, &view.incidence);
-    views->push_back(std::move(view));
-  }
+  for (std::size_t eye = 0; eye < rig.T_base_cameras.size(); ++eye) views->push_back(Render(rig, eye));
   if (keep) {  // two requests may have rendered the same rig at once: the first one kept wins
     std::lock_guard lock(parts_->views->mutex);
     return parts_->views->kept.emplace(o, views).first->second;
@@ -161,17 +167,21 @@ std::shared_ptr<const std::vector<ExpectedSurfaceMaker::View>> ExpectedSurfaceMa
   return views;
 }
 
-Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const ReconstructionOptions& o, const RayCaster* context) const {
+Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const ReconstructionOptions& o, const Rig& rig,
+                                                const std::vector<const View*>& robot_views,
+                                                const RayCaster* context) const {
   TsdfVolume volume(Volume(o));
-  const Rig rig = Eyes(o);
-  const auto robot_views = RobotViews(o, rig, context != nullptr);
   for (std::size_t a = 0; a < rig.T_base_cameras.size(); ++a) {
-    View view = (*robot_views)[a];
+    const Iso3& T_base_camera = rig.T_base_cameras[a];
+    if (!context) {
+      ARREF_RETURN_IF_ERROR(volume.Integrate(rig.camera, T_base_camera, robot_views[a]->range, robot_views[a]->incidence));
+      continue;
+    }
+    View view = *robot_views[a];
     std::vector<float> context_incidence;
-    if (context)
-      NearerOf(context->Render(rig.camera, rig.T_base_cameras[a], rig.max_range, &context_incidence, &view.range),
-               context_incidence, &view.range, &view.incidence);
-    ARREF_RETURN_IF_ERROR(volume.Integrate(rig.camera, rig.T_base_cameras[a], view.range, view.incidence));
+    NearerOf(context->Render(rig.camera, T_base_camera, rig.max_range, &context_incidence, &view.range),
+             context_incidence, &view.range, &view.incidence);
+    ARREF_RETURN_IF_ERROR(volume.Integrate(rig.camera, T_base_camera, view.range, view.incidence));
   }
   return volume.ExtractMesh();
 }
@@ -237,13 +247,62 @@ TriangleMesh ExpectedSurfaceMaker::Context(const TriangleMesh& scene_world, cons
 Result<PointCloud> ExpectedSurfaceMaker::Sample(const ReconstructionOptions& options, const RayCaster* context_caster,
                                                 const PointIndex* context, std::size_t samples) const {
   ARREF_RETURN_IF_ERROR(CheckOptions(options));
-  auto fused = Fuse(options, context_caster);
+  const Rig rig = Eyes(options);
+  const auto views = RobotViews(options, rig, context_caster != nullptr);
+  std::vector<const View*> view_of_eye;
+  for (const View& view : *views) view_of_eye.push_back(&view);
+  return SampleFused(options, Fuse(options, rig, view_of_eye, context_caster), context, samples);
+}
+
+Result<PointCloud> ExpectedSurfaceMaker::SampleFused(const ReconstructionOptions& options, Result<TriangleMesh> fused,
+                                                     const PointIndex* context, std::size_t samples) const {
   if (!fused.ok()) return fused.status().WithContext("expected surface");
   const TriangleMesh robot = RobotPart(*fused, context);
   if (robot.empty())
     return Status::FailedPrecondition(
         fmt::format("expected surface: nothing of the robot survives fusion at {} m voxels", options.voxel_m));
   return SampleSurface(robot, samples, parts_->seed);
+}
+
+std::vector<Result<PointCloud>> ExpectedSurfaceMaker::MakeMany(const std::vector<ReconstructionOptions>& options,
+                                                               std::size_t samples) const {
+  std::vector<Result<PointCloud>> clouds;
+  std::vector<Rig> rigs;  // of the options that make sense; the others fail alone
+  std::vector<std::size_t> rig_of_options;
+  for (const ReconstructionOptions& o : options) {
+    const Status checked = CheckOptions(o);
+    clouds.push_back(checked.ok() ? Result<PointCloud>(PointCloud{}) : Result<PointCloud>(checked));
+    rig_of_options.push_back(rigs.size());
+    if (checked.ok()) rigs.push_back(Eyes(o));
+  }
+  // Every distinct eye once; equal means bit for bit, so a shared eye's image is the one each
+  // rig would have rendered on its own.
+  const auto same_eye = [](const Rig& a, std::size_t eye_a, const Rig& b, std::size_t eye_b) {
+    return a.camera.width == b.camera.width && a.camera.height == b.camera.height &&
+           a.camera.focal_px == b.camera.focal_px && a.max_range == b.max_range &&
+           a.T_base_cameras[eye_a].matrix() == b.T_base_cameras[eye_b].matrix();
+  };
+  std::vector<std::pair<const Rig*, std::size_t>> distinct;
+  std::vector<std::vector<std::size_t>> slot_of_eye(rigs.size());
+  for (const Rig& rig : rigs)
+    for (std::size_t eye = 0; eye < rig.T_base_cameras.size(); ++eye) {
+      const auto same = std::find_if(distinct.begin(), distinct.end(), [&](const auto& d) {
+        return same_eye(*d.first, d.second, rig, eye);
+      });
+      slot_of_eye[&rig - rigs.data()].push_back(static_cast<std::size_t>(same - distinct.begin()));
+      if (same == distinct.end()) distinct.emplace_back(&rig, eye);
+    }
+  std::vector<View> views;
+  for (const auto& [rig, eye] : distinct) views.push_back(Render(*rig, eye));
+  spdlog::debug("expected surfaces: {} surfaces from {} distinct eyes", rigs.size(), distinct.size());
+  for (std::size_t i = 0; i < options.size(); ++i) {
+    if (!clouds[i].ok()) continue;
+    const std::size_t r = rig_of_options[i];
+    std::vector<const View*> view_of_eye;
+    for (std::size_t slot : slot_of_eye[r]) view_of_eye.push_back(&views[slot]);
+    clouds[i] = SampleFused(options[i], Fuse(options[i], rigs[r], view_of_eye, nullptr), nullptr, samples);
+  }
+  return clouds;
 }
 
 Result<PointCloud> ExpectedRobotSurface(const TriangleMesh& robot_base, const ReconstructionOptions& options,

@@ -21,6 +21,10 @@ struct CellVariation {
   sim::SeedNoise seed_noise;
   bool walk_any_side = false;  // each cell's robot turned at random: the user maps any side of it
   double walk_arc_deg = 0.0;   // > 0: the arc the simulated user walks (default: the simulator's)
+  // Each cell's user walks a path of their own (arc, centre, distance, eye height, views, and a
+  // wander off the arc) instead of the simulator's regular arc, whose eyes the expected
+  // surfaces' eyes match.
+  bool varied_walk = false;
   double pose_jitter_m = -1;   // >= 0: the head-tracking error (sim::SetPoseJitter; default: the simulator's)
 };
 

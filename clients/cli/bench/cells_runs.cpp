@@ -80,6 +80,17 @@ void ExecuteOne(Job& job) {
   run.total_ms = report->total_ms();
 }
 
+// A user's own walk: how far round, where, how far off, how tall, how many looks.
+void VaryWalk(sim::ScanOptions* scan, std::mt19937_64& rng) {
+  using U = std::uniform_real_distribution<double>;
+  scan->path_arc_deg = std::clamp(scan->path_arc_deg + U(-40.0, 40.0)(rng), 30.0, 360.0);
+  scan->path_center_deg = U(-30.0, 30.0)(rng);
+  scan->path_radius_m = U(1.5, 2.4)(rng);
+  scan->eye_height_m = U(1.5, 1.8)(rng);
+  scan->views = std::uniform_int_distribution<int>(16, 32)(rng);
+  scan->path_wander_m = 0.1;
+}
+
 double Quantile(std::vector<double> v, double q) {
   if (v.empty()) return std::nan("");
   std::sort(v.begin(), v.end());
@@ -110,6 +121,7 @@ Result<std::vector<Cell>> MakeCells(const RobotModel& robot, const std::vector<s
       if (variation.walk_arc_deg > 0) options->scan.path_arc_deg = variation.walk_arc_deg;
       if (variation.pose_jitter_m >= 0) sim::SetPoseJitter(&options->scan, variation.pose_jitter_m);
       if (variation.walk_any_side) options->cell.base_yaw_deg = std::uniform_real_distribution<double>(-180.0, 180.0)(rng);
+      if (variation.varied_walk) VaryWalk(&options->scan, rng);
       auto sim = sim::SimulateCell(robot, *options, seed);
       if (!sim.ok()) return sim.status().WithContext("bench cell " + kind + " " + std::to_string(i));
       Cell cell{kind, size, i, std::move(*sim), {}, {}};

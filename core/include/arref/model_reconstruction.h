@@ -51,6 +51,10 @@ class ExpectedSurfaceMaker {
   ~ExpectedSurfaceMaker();
   // As ExpectedRobotSurface. Const and thread-safe.
   Result<PointCloud> Make(const ReconstructionOptions& options, std::size_t samples) const;
+  // One surface per options, each as Make gives it. An eye that several of them share (walks
+  // whose azimuths lie on one lattice) is rendered once: renders are half a surface's cost.
+  std::vector<Result<PointCloud>> MakeMany(const std::vector<ReconstructionOptions>& options,
+                                           std::size_t samples) const;
   // The same with the other objects the headset mapped round the robot (a table, walls,
   // clutter): they hide parts of the robot from the eyes and fuse with it, as they did in the
   // headset's mesh. They are the triangles of scene_world, with the robot at T_world_base,
@@ -68,7 +72,9 @@ class ExpectedSurfaceMaker {
   Rig Eyes(const ReconstructionOptions& options) const;
   std::shared_ptr<const std::vector<View>> RobotViews(const ReconstructionOptions& options, const Rig& rig,
                                                       bool keep) const;
-  Result<TriangleMesh> Fuse(const ReconstructionOptions& options, const RayCaster* context) const;
+  View Render(const Rig& rig, std::size_t eye) const;
+  Result<TriangleMesh> Fuse(const ReconstructionOptions& options, const Rig& rig,
+                            const std::vector<const View*>& robot_views, const RayCaster* context) const;
   TsdfOptions Volume(const ReconstructionOptions& options) const;
   Aabb Band(const ReconstructionOptions& options) const;
   TriangleMesh Context(const TriangleMesh& scene_world, const Iso3& T_world_base, double clearance_m) const;
@@ -76,6 +82,8 @@ class ExpectedSurfaceMaker {
   TriangleMesh RobotPart(const TriangleMesh& fused, const PointIndex* context) const;
   Result<PointCloud> Sample(const ReconstructionOptions& options, const RayCaster* context_caster,
                             const PointIndex* context, std::size_t samples) const;
+  Result<PointCloud> SampleFused(const ReconstructionOptions& options, Result<TriangleMesh> fused,
+                                 const PointIndex* context, std::size_t samples) const;
   std::unique_ptr<Parts> parts_;
 };
 

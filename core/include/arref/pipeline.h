@@ -73,8 +73,9 @@ class RobotSide {
                                                          std::size_t samples, std::uint64_t seed);
   const PointCloud& samples() const { return samples_; }
   // Cached per millimetre of voxel size and walk; thread-safe. walk -1: all round; k in
-  // [0, kWalks): a 220 degree arc centred at k * 360 / kWalks degrees. thinned_to > 0: at most
-  // that many of its points (Thinned), as a method fits them.
+  // [0, kWalks): a 216 degree arc centred at k * 360 / kWalks degrees. thinned_to > 0: at most
+  // that many of its points (Thinned), as a method fits them. The first call for a voxel size
+  // makes every walk's surface.
   static constexpr int kWalks = 8;
   Result<std::shared_ptr<const PointCloud>> Expected(double voxel_m, int walk = -1, std::size_t thinned_to = 0) const;
   // The samples a person can see (VisiblePoints), Thinned; cached, thread-safe.
@@ -88,6 +89,7 @@ class RobotSide {
   RobotSide(TriangleMesh mesh_base, PointCloud samples, std::uint64_t seed);
   using ExpectedKey = std::tuple<long, int, std::size_t>;  // voxel in mm, walk, thinned_to
   Result<std::shared_ptr<const PointCloud>> ExpectedLocked(const ExpectedKey& key) const;  // under mutex_
+  void MakeEveryWalk(long voxel_mm) const;  // into expected_ or failed_, under mutex_
   Result<std::shared_ptr<const ExpectedSurfaceMaker>> Maker() const;  // under mutex_
   TriangleMesh mesh_base_;
   PointCloud samples_;
@@ -95,6 +97,7 @@ class RobotSide {
   mutable std::mutex mutex_;
   mutable std::shared_ptr<const ExpectedSurfaceMaker> maker_;  // made on first use
   mutable std::map<ExpectedKey, std::shared_ptr<const PointCloud>> expected_;
+  mutable std::map<ExpectedKey, Status> failed_;
   mutable std::map<std::size_t, std::shared_ptr<const PointCloud>> visible_;
 };
 

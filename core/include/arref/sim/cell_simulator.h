@@ -36,6 +36,10 @@ struct ScanOptions {
   double path_arc_deg = 220.0;      // the path covers this much of the circle: the rest is never seen
   double path_radius_m = 1.9;       // distance of the walker from the robot base
   double eye_height_m = 1.65;
+  double path_center_deg = 0.0;     // the arc's middle, from the cell's +x
+  // A person walks no circle: sigma of each view's departure from the arc, in radius and eye
+  // height (a third of it), and its azimuth moves up to 40 % of the spacing. 0: exactly on it.
+  double path_wander_m = 0.0;
   int image_width = 320;
   int image_height = 288;
   double fov_horizontal_deg = 75.0;

@@ -66,12 +66,14 @@ TriangleMesh TrianglesInBox(const TriangleMesh& mesh, const Aabb& box) {
 struct ExpectedSurfaceMaker::View {
   RangeImage range;
   std::vector<float> incidence;
+  std::vector<Eigen::Vector3i> band;  // its TsdfVolume::BandBlocks, when several volumes fuse it
 };
 
 struct ExpectedSurfaceMaker::Rig {
   PinholeCamera camera;
   double max_range;
   std::vector<Iso3> T_base_cameras;
+  TsdfOptions volume;  // that fuses the images
 };
 
 // The robot's images kept per eye rig (RobotViews).
@@ -128,7 +130,7 @@ ExpectedSurfaceMaker::Rig ExpectedSurfaceMaker::Eyes(const ReconstructionOptions
   const double image_width_m = 2 * o.distance_m * std::tan(o.fov_horizontal_deg * std::numbers::pi / 360);
   const int width = std::clamp(static_cast<int>(std::ceil(image_width_m / o.voxel_m * o.pixels_per_voxel)), 64, 2048);
   Rig rig{PinholeCamera::FromFov(width, width * 9 / 10, o.fov_horizontal_deg),
-          o.distance_m + 2 * tsdf.crop_radius_m + o.eye_height_m, {}};
+          o.distance_m + 2 * tsdf.crop_radius_m + o.eye_height_m, {}, tsdf};
   // A full circle has no ends: its eyes are spread without doubling the first.
   const double step = o.arc_deg >= 360 ? 360.0 / o.azimuths : o.arc_deg / std::max(1, o.azimuths - 1);
   const double first = o.arc_deg >= 360 ? 0.0 : -o.arc_deg / 2;
@@ -174,7 +176,10 @@ Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const ReconstructionOptions& o, 
   for (std::size_t a = 0; a < rig.T_base_cameras.size(); ++a) {
     const Iso3& T_base_camera = rig.T_base_cameras[a];
     if (!context) {
-      ARREF_RETURN_IF_ERROR(volume.Integrate(rig.camera, T_base_camera, robot_views[a]->range, robot_views[a]->incidence));
+      const View& view = *robot_views[a];
+      ARREF_RETURN_IF_ERROR(view.band.empty()
+                                ? volume.Integrate(rig.camera, T_base_camera, view.range, view.incidence)
+                                : volume.Integrate(rig.camera, T_base_camera, view.range, view.incidence, view.band));
       continue;
     }
     View view = *robot_views[a];
@@ -280,7 +285,9 @@ std::vector<Result<PointCloud>> ExpectedSurfaceMaker::MakeMany(const std::vector
   const auto same_eye = [](const Rig& a, std::size_t eye_a, const Rig& b, std::size_t eye_b) {
     return a.camera.width == b.camera.width && a.camera.height == b.camera.height &&
            a.camera.focal_px == b.camera.focal_px && a.max_range == b.max_range &&
-           a.T_base_cameras[eye_a].matrix() == b.T_base_cameras[eye_b].matrix();
+           a.T_base_cameras[eye_a].matrix() == b.T_base_cameras[eye_b].matrix() &&
+           a.volume.voxel_m == b.volume.voxel_m && a.volume.truncation_m == b.volume.truncation_m &&
+           a.volume.crop_center == b.volume.crop_center && a.volume.crop_radius_m == b.volume.crop_radius_m;
   };
   std::vector<std::pair<const Rig*, std::size_t>> distinct;
   std::vector<std::vector<std::size_t>> slot_of_eye(rigs.size());
@@ -293,7 +300,10 @@ std::vector<Result<PointCloud>> ExpectedSurfaceMaker::MakeMany(const std::vector
       if (same == distinct.end()) distinct.emplace_back(&rig, eye);
     }
   std::vector<View> views;
-  for (const auto& [rig, eye] : distinct) views.push_back(Render(*rig, eye));
+  for (const auto& [rig, eye] : distinct) {
+    views.push_back(Render(*rig, eye));
+    views.back().band = TsdfVolume::BandBlocks(rig->volume, rig->camera, rig->T_base_cameras[eye], views.back().range);
+  }
   spdlog::debug("expected surfaces: {} surfaces from {} distinct eyes", rigs.size(), distinct.size());
   for (std::size_t i = 0; i < options.size(); ++i) {
     if (!clouds[i].ok()) continue;

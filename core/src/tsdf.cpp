@@ -73,16 +73,22 @@ TsdfVolume::Key TsdfVolume::KeyOf(const Eigen::Vector3i& b) {
   return (k(b.x()) << 42) | (k(b.y()) << 21) | k(b.z());
 }
 
-Eigen::Vector3i TsdfVolume::BlockOf(const Vec3& p) const {
+Eigen::Vector3i TsdfVolume::BlockOf(const Vec3& p, double voxel_m) {
   Eigen::Vector3i b;
-  for (int a = 0; a < 3; ++a) b[a] = FloorDiv(static_cast<int>(std::lround(p[a] / options_.voxel_m)), B);
+  for (int a = 0; a < 3; ++a) b[a] = FloorDiv(static_cast<int>(std::lround(p[a] / voxel_m)), B);
   return b;
 }
 
 Status TsdfVolume::Integrate(const PinholeCamera& camera, const Iso3& T_volume_camera, const RangeImage& range,
                              const std::vector<float>& incidence) {
   if (incidence.size() != range.size()) return Status::InvalidArgument("TSDF: incidence image size differs from range");
-  ARREF_RETURN_IF_ERROR(AllocateBand(camera, T_volume_camera, range));
+  return Integrate(camera, T_volume_camera, range, incidence, BandBlocks(options_, camera, T_volume_camera, range));
+}
+
+Status TsdfVolume::Integrate(const PinholeCamera& camera, const Iso3& T_volume_camera, const RangeImage& range,
+                             const std::vector<float>& incidence, const std::vector<Eigen::Vector3i>& band) {
+  if (incidence.size() != range.size()) return Status::InvalidArgument("TSDF: incidence image size differs from range");
+  ARREF_RETURN_IF_ERROR(Allocate(band));
   const Iso3 T_camera_volume = T_volume_camera.inverse();
   // Each block is updated by one task, so the result does not depend on scheduling.
   tbb::parallel_for(std::size_t{0}, blocks_.size(),
@@ -90,13 +96,14 @@ Status TsdfVolume::Integrate(const PinholeCamera& camera, const Iso3& T_volume_c
   return Status::Ok();
 }
 
-// Allocates the blocks within the truncation band around every measured point. Collected per
-// row in parallel, inserted in row order so block order (and the mesh) is deterministic.
-Status TsdfVolume::AllocateBand(const PinholeCamera& camera, const Iso3& T_volume_camera, const RangeImage& range) {
-  const double trunc = options_.truncation_m;
-  const double block_m = B * options_.voxel_m;
+// Collected per row in parallel, merged in row order so block order (and the mesh) is
+// deterministic.
+std::vector<Eigen::Vector3i> TsdfVolume::BandBlocks(const TsdfOptions& options, const PinholeCamera& camera,
+                                                    const Iso3& T_volume_camera, const RangeImage& range) {
+  const double trunc = options.truncation_m;
+  const double block_m = B * options.voxel_m;
   const double step = std::min(0.5 * block_m, trunc);
-  const double keep_radius = options_.crop_radius_m + 0.87 * block_m;
+  const double keep_radius = options.crop_radius_m + 0.87 * block_m;
   std::vector<std::vector<Eigen::Vector3i>> rows(camera.height);
   tbb::parallel_for(0, camera.height, [&](int v) {
     Key last = ~Key{0};
@@ -106,25 +113,31 @@ Status TsdfVolume::AllocateBand(const PinholeCamera& camera, const Iso3& T_volum
       const Vec3 dir = T_volume_camera.linear() * camera.RayDirection(u, v);
       for (double t = r - trunc; t <= r + trunc + 1e-9; t += step) {
         const Vec3 p = T_volume_camera.translation() + t * dir;
-        if ((p - options_.crop_center).norm() > keep_radius) continue;
-        const Eigen::Vector3i b = BlockOf(p);
-        const Key k = KeyOf(b);
-        if (k == last) continue;
-        last = k;
-        // Read-only lookups here, in parallel: after the first views nearly every block is there.
-        if ((!near_only_ || near_.count(k)) && !index_.count(k)) rows[v].push_back(b);
+        if ((p - options.crop_center).norm() > keep_radius) continue;
+        const Eigen::Vector3i b = BlockOf(p, options.voxel_m);
+        if (const Key k = KeyOf(b); k != last) rows[v].push_back(b), last = k;
       }
     }
   });
+  std::vector<Eigen::Vector3i> band;
+  std::unordered_set<Key> listed;
   for (const auto& row : rows)
-    for (const Eigen::Vector3i& b : row) {
-      if (index_.count(KeyOf(b))) continue;
-      if (blocks_.size() >= options_.max_blocks)
-        return Status::ResourceExhausted("TSDF fusion needs more than " + std::to_string(options_.max_blocks) +
-                                         " voxel blocks: fusion.voxel_m is too small for the scene");
-      index_.emplace(KeyOf(b), static_cast<int>(blocks_.size()));
-      blocks_.push_back(Block{b, std::vector<Voxel>(kVoxelsPerBlock)});
-    }
+    for (const Eigen::Vector3i& b : row)
+      if (listed.insert(KeyOf(b)).second) band.push_back(b);
+  return band;
+}
+
+// Allocates the band's blocks that are new (and near, when near_points were given).
+Status TsdfVolume::Allocate(const std::vector<Eigen::Vector3i>& band) {
+  for (const Eigen::Vector3i& b : band) {
+    const Key k = KeyOf(b);
+    if ((near_only_ && !near_.count(k)) || index_.count(k)) continue;
+    if (blocks_.size() >= options_.max_blocks)
+      return Status::ResourceExhausted("TSDF fusion needs more than " + std::to_string(options_.max_blocks) +
+                                       " voxel blocks: fusion.voxel_m is too small for the scene");
+    index_.emplace(k, static_cast<int>(blocks_.size()));
+    blocks_.push_back(Block{b, std::vector<Voxel>(kVoxelsPerBlock)});
+  }
   return Status::Ok();
 }
 

@@ -44,6 +44,15 @@ class TsdfVolume {
   // overstated positive side of grazing views drags horizontal surfaces ~5 mm down.
   Status Integrate(const PinholeCamera& camera, const Iso3& T_volume_camera, const RangeImage& range,
                    const std::vector<float>& incidence);
+  // The same with the image's BandBlocks already known (they depend on the options, not on
+  // what the volume holds): an image fused into several volumes needs them once.
+  Status Integrate(const PinholeCamera& camera, const Iso3& T_volume_camera, const RangeImage& range,
+                   const std::vector<float>& incidence, const std::vector<Eigen::Vector3i>& band);
+
+  // The blocks within the truncation band of an image's measured pixels and the crop, each
+  // once, in the order Integrate allocates them.
+  static std::vector<Eigen::Vector3i> BandBlocks(const TsdfOptions& options, const PinholeCamera& camera,
+                                                 const Iso3& T_volume_camera, const RangeImage& range);
 
   // Naive Surface Nets in the volume frame: a vertex per sign-changing cell, a quad per
   // sign-changing edge, only where every voxel involved was observed. Counter-clockwise
@@ -66,9 +75,10 @@ class TsdfVolume {
  private:
 
   static Key KeyOf(const Eigen::Vector3i& block);
-  Eigen::Vector3i BlockOf(const Vec3& p) const;
+  static Eigen::Vector3i BlockOf(const Vec3& p, double voxel_m);
+  Eigen::Vector3i BlockOf(const Vec3& p) const { return BlockOf(p, options_.voxel_m); }
   void MarkNearBlocks(const std::vector<Vec3f>& points);
-  Status AllocateBand(const PinholeCamera& camera, const Iso3& T_volume_camera, const RangeImage& range);
+  Status Allocate(const std::vector<Eigen::Vector3i>& band);
   template <class Scalar>
   void UpdateVoxels(Block& block, const PinholeCamera& camera, const Eigen::Matrix<Scalar, 3, 1>& origin,
                     const Eigen::Matrix<Scalar, 3, 3>& step, const RangeImage& range,

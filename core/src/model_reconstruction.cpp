@@ -169,10 +169,9 @@ std::shared_ptr<const std::vector<ExpectedSurfaceMaker::View>> ExpectedSurfaceMa
   return views;
 }
 
-Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const ReconstructionOptions& o, const Rig& rig,
-                                                const std::vector<const View*>& robot_views,
+Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const Rig& rig, const std::vector<const View*>& robot_views,
                                                 const RayCaster* context) const {
-  TsdfVolume volume(Volume(o));
+  TsdfVolume volume(rig.volume);
   for (std::size_t a = 0; a < rig.T_base_cameras.size(); ++a) {
     const Iso3& T_base_camera = rig.T_base_cameras[a];
     if (!context) {
@@ -256,7 +255,7 @@ Result<PointCloud> ExpectedSurfaceMaker::Sample(const ReconstructionOptions& opt
   const auto views = RobotViews(options, rig, context_caster != nullptr);
   std::vector<const View*> view_of_eye;
   for (const View& view : *views) view_of_eye.push_back(&view);
-  return SampleFused(options, Fuse(options, rig, view_of_eye, context_caster), context, samples);
+  return SampleFused(options, Fuse(rig, view_of_eye, context_caster), context, samples);
 }
 
 Result<PointCloud> ExpectedSurfaceMaker::SampleFused(const ReconstructionOptions& options, Result<TriangleMesh> fused,
@@ -310,7 +309,7 @@ std::vector<Result<PointCloud>> ExpectedSurfaceMaker::MakeMany(const std::vector
     const std::size_t r = rig_of_options[i];
     std::vector<const View*> view_of_eye;
     for (std::size_t slot : slot_of_eye[r]) view_of_eye.push_back(&views[slot]);
-    clouds[i] = SampleFused(options[i], Fuse(options[i], rigs[r], view_of_eye, nullptr), nullptr, samples);
+    clouds[i] = SampleFused(options[i], Fuse(rigs[r], view_of_eye, nullptr), nullptr, samples);
   }
   return clouds;
 }

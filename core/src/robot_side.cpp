@@ -83,8 +83,7 @@ Result<std::shared_ptr<const PointCloud>> RobotSide::ExpectedLocked(const Expect
 }
 
 // The walk choice lays every walk's surface on the scene, so all of them are made together:
-// they share most eyes.
-// Each walk's failure is kept, so that a request does not make all of them again for it.
+// they share most eyes. A walk's failure is kept, so that asking again does not remake them all.
 void RobotSide::MakeEveryWalk(long voxel_mm) const {
   const auto t0 = std::chrono::steady_clock::now();
   auto maker = Maker();

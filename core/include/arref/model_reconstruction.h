@@ -73,8 +73,8 @@ class ExpectedSurfaceMaker {
   std::shared_ptr<const std::vector<View>> RobotViews(const ReconstructionOptions& options, const Rig& rig,
                                                       bool keep) const;
   View Render(const Rig& rig, std::size_t eye) const;
-  Result<TriangleMesh> Fuse(const ReconstructionOptions& options, const Rig& rig,
-                            const std::vector<const View*>& robot_views, const RayCaster* context) const;
+  Result<TriangleMesh> Fuse(const Rig& rig, const std::vector<const View*>& robot_views,
+                            const RayCaster* context) const;
   TsdfOptions Volume(const ReconstructionOptions& options) const;
   Aabb Band(const ReconstructionOptions& options) const;
   TriangleMesh Context(const TriangleMesh& scene_world, const Iso3& T_world_base, double clearance_m) const;

@@ -152,21 +152,19 @@ ExpectedSurfaceMaker::View ExpectedSurfaceMaker::Render(const Rig& rig, std::siz
   return view;
 }
 
-// The robot's images from every eye. Kept when `keep`: a refit in context renders the same
-// robot from the same eyes on every request, only the objects round it change.
+// The robot's images from every eye, kept: a refit in context renders the same robot from the
+// same eyes on every request, only the objects round it change.
 std::shared_ptr<const std::vector<ExpectedSurfaceMaker::View>> ExpectedSurfaceMaker::RobotViews(
-    const ReconstructionOptions& o, const Rig& rig, bool keep) const {
+    const ReconstructionOptions& o, const Rig& rig) const {
   {
     std::lock_guard lock(parts_->views->mutex);
     if (auto it = parts_->views->kept.find(o); it != parts_->views->kept.end()) return it->second;
   }
   auto views = std::make_shared<std::vector<View>>();
   for (std::size_t eye = 0; eye < rig.T_base_cameras.size(); ++eye) views->push_back(Render(rig, eye));
-  if (keep) {  // two requests may have rendered the same rig at once: the first one kept wins
-    std::lock_guard lock(parts_->views->mutex);
-    return parts_->views->kept.emplace(o, views).first->second;
-  }
-  return views;
+  // Two requests may have rendered the same rig at once: the first one kept wins.
+  std::lock_guard lock(parts_->views->mutex);
+  return parts_->views->kept.emplace(o, views).first->second;
 }
 
 Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const Rig& rig, const std::vector<const View*>& robot_views,
@@ -174,11 +172,9 @@ Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const Rig& rig, const std::vecto
   TsdfVolume volume(rig.volume);
   for (std::size_t a = 0; a < rig.T_base_cameras.size(); ++a) {
     const Iso3& T_base_camera = rig.T_base_cameras[a];
-    if (!context) {
+    if (!context) {  // the robot alone: its images and their bands as MakeMany shares them
       const View& view = *robot_views[a];
-      ARREF_RETURN_IF_ERROR(view.band.empty()
-                                ? volume.Integrate(rig.camera, T_base_camera, view.range, view.incidence)
-                                : volume.Integrate(rig.camera, T_base_camera, view.range, view.incidence, view.band));
+      ARREF_RETURN_IF_ERROR(volume.Integrate(rig.camera, T_base_camera, view.range, view.incidence, view.band));
       continue;
     }
     View view = *robot_views[a];
@@ -205,7 +201,7 @@ TriangleMesh ExpectedSurfaceMaker::RobotPart(const TriangleMesh& fused, const Po
 }
 
 Result<PointCloud> ExpectedSurfaceMaker::Make(const ReconstructionOptions& options, std::size_t samples) const {
-  return Sample(options, nullptr, nullptr, samples);
+  return std::move(MakeMany({options}, samples).front());
 }
 
 Result<PointCloud> ExpectedSurfaceMaker::MakeInContext(const ReconstructionOptions& options, std::size_t samples,
@@ -217,9 +213,9 @@ Result<PointCloud> ExpectedSurfaceMaker::MakeInContext(const ReconstructionOptio
   auto caster = RayCaster::Create(context_base);
   if (!caster.ok()) return caster.status().WithContext("expected surface in context");
   std::vector<Vec3f> near = FusedPart(context_base, options);
-  if (near.empty()) return Sample(options, &*caster, nullptr, samples);  // objects that only hide the robot
+  if (near.empty()) return Sample(options, *caster, nullptr, samples);  // objects that only hide the robot
   const PointIndex context(std::move(near));
-  return Sample(options, &*caster, &context, samples);
+  return Sample(options, *caster, &context, samples);
 }
 
 // Points on the objects in the fused band round the robot, where they can border its shell: two
@@ -248,14 +244,14 @@ TriangleMesh ExpectedSurfaceMaker::Context(const TriangleMesh& scene_world, cons
   });
 }
 
-Result<PointCloud> ExpectedSurfaceMaker::Sample(const ReconstructionOptions& options, const RayCaster* context_caster,
+Result<PointCloud> ExpectedSurfaceMaker::Sample(const ReconstructionOptions& options, const RayCaster& context_caster,
                                                 const PointIndex* context, std::size_t samples) const {
   ARREF_RETURN_IF_ERROR(CheckOptions(options));
   const Rig rig = Eyes(options);
-  const auto views = RobotViews(options, rig, context_caster != nullptr);
+  const auto views = RobotViews(options, rig);
   std::vector<const View*> view_of_eye;
   for (const View& view : *views) view_of_eye.push_back(&view);
-  return SampleFused(options, Fuse(rig, view_of_eye, context_caster), context, samples);
+  return SampleFused(options, Fuse(rig, view_of_eye, &context_caster), context, samples);
 }
 
 Result<PointCloud> ExpectedSurfaceMaker::SampleFused(const ReconstructionOptions& options, Result<TriangleMesh> fused,

@@ -81,7 +81,6 @@ Eigen::Vector3i TsdfVolume::BlockOf(const Vec3& p, double voxel_m) {
 
 Status TsdfVolume::Integrate(const PinholeCamera& camera, const Iso3& T_volume_camera, const RangeImage& range,
                              const std::vector<float>& incidence) {
-  if (incidence.size() != range.size()) return Status::InvalidArgument("TSDF: incidence image size differs from range");
   return Integrate(camera, T_volume_camera, range, incidence, BandBlocks(options_, camera, T_volume_camera, range));
 }
 

@@ -70,8 +70,7 @@ class ExpectedSurfaceMaker {
   struct ViewCache;
   explicit ExpectedSurfaceMaker(std::unique_ptr<Parts> parts);
   Rig Eyes(const ReconstructionOptions& options) const;
-  std::shared_ptr<const std::vector<View>> RobotViews(const ReconstructionOptions& options, const Rig& rig,
-                                                      bool keep) const;
+  std::shared_ptr<const std::vector<View>> RobotViews(const ReconstructionOptions& options, const Rig& rig) const;
   View Render(const Rig& rig, std::size_t eye) const;
   Result<TriangleMesh> Fuse(const Rig& rig, const std::vector<const View*>& robot_views,
                             const RayCaster* context) const;
@@ -80,7 +79,8 @@ class ExpectedSurfaceMaker {
   TriangleMesh Context(const TriangleMesh& scene_world, const Iso3& T_world_base, double clearance_m) const;
   std::vector<Vec3f> FusedPart(const TriangleMesh& context_base, const ReconstructionOptions& options) const;
   TriangleMesh RobotPart(const TriangleMesh& fused, const PointIndex* context) const;
-  Result<PointCloud> Sample(const ReconstructionOptions& options, const RayCaster* context_caster,
+  // The robot fused with the objects' images (context_caster) and split from them (context).
+  Result<PointCloud> Sample(const ReconstructionOptions& options, const RayCaster& context_caster,
                             const PointIndex* context, std::size_t samples) const;
   Result<PointCloud> SampleFused(const ReconstructionOptions& options, Result<TriangleMesh> fused,
                                  const PointIndex* context, std::size_t samples) const;

@@ -7,6 +7,7 @@
 #include <pcl/registration/icp.h>
 #include <tbb/global_control.h>
 
+#include <cstdint>
 #include <memory>
 #include <utility>
 
@@ -108,10 +109,12 @@ void BM_PclIteration(benchmark::State& state) {
 }
 
 // One request end to end as the server runs it (crop, sample, register, evaluate), with the
-// robot side's cached surfaces already made: arg 1 with the refit in context, 0 without.
+// robot side's cached surfaces already made. Args: the refit in context (1) or not (0), and
+// the points of its last polish (the default, or 2,000 as before it had its own count).
 void BM_Request(benchmark::State& state) {
   RegistrationOptions options;
   options.arref_icp.in_context = state.range(0) != 0;
+  options.arref_icp.context_points = static_cast<std::size_t>(state.range(1));
   const Fixture& f = Cell();
   auto warm = RegisterScene(*f.robot, f.scene_mesh, f.T_world_seed, options);
   if (!warm.ok()) return state.SkipWithError(warm.status().ToString().c_str());
@@ -156,7 +159,11 @@ void BM_NewJointStateOneByOne(benchmark::State& state) {
 
 // Wall time, and the CPU time of every thread: their ratio is how many of the cores the step keeps
 // busy (a ratio near the core count leaves nothing for more parallelism to gain).
-BENCHMARK(BM_Request)->Arg(1)->Arg(0)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_Request)
+    ->Args({1, static_cast<std::int64_t>(ArrefIcpParams{}.context_points)})
+    ->Args({1, 2000})
+    ->Args({0, 0})
+    ->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_NewJointState)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_NewJointStateOneByOne)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ExpectedInContext)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);

@@ -166,7 +166,7 @@ Candidate RefineInContext(const MethodInput& in, int walk, const TargetCloud& ta
     stages->push_back("in-context-skipped");
     return best;
   }
-  *fitted = std::make_shared<const PointCloud>(Thinned(*surface, in.options.arref_icp.fine_points));
+  *fitted = std::make_shared<const PointCloud>(Thinned(*surface, in.options.arref_icp.context_points));
   stages->push_back("in-context");
   return Polish(**fitted, target, best, in.options.arref_icp);
 }

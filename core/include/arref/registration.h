@@ -36,6 +36,10 @@ struct ArrefIcpParams {
   // lost 5 of the bench's 192 user-like runs within 10 mm (1,000 points: 3).
   std::size_t approach_points = 2000;
   std::size_t fine_points = 2000;
+  // The last polish, on the surface refitted in context, averages the mesh's bends over more
+  // points: 5,000 instead of 2,000 lifted the bench's 480 user-like runs from 467 to 475 within
+  // 10 mm (users' own paths: 464 to 469) for about 5 ms a request (docs/engine.md).
+  std::size_t context_points = 5000;
   int refine_top = 2;
   bool final_six_dof = false;      // a last 6-DoF step would absorb tilt of the headset world (robots stand upright)
   // Fit the robot as the headset would mesh it (model_reconstruction.h) rather than its exact

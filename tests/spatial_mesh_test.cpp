@@ -2,6 +2,7 @@
 
 #include <cmath>
 
+#include "arref/nearest_neighbor.h"
 #include "arref/spatial_mesh.h"
 
 namespace arref {
@@ -91,6 +92,22 @@ TEST(SpatialMesh, CropKeepsTrianglesTouchingTheSphere) {
   for (const auto& t : cropped.triangles)
     for (auto v : t) EXPECT_LT(v, cropped.vertices.size());
   EXPECT_TRUE(CropToSphere(grid, Vec3(100, 0, 0), 1.0).empty());
+}
+
+// The part of a mesh round a fitted model: a triangle is kept when its centroid lies within
+// the distance of a model point, whatever its vertices' distances.
+TEST(SpatialMesh, TrianglesNearKeepsTheMeshRoundThePoints) {
+  TriangleMesh grid;
+  for (int i = 0; i < 10; ++i) grid.Append(Quad(0).mesh, MakeYawPose(i, 0, 0, 0));
+  // Quad i's centroids lie at (i + 1/3, 2/3) and (i + 2/3, 1/3), 0.1 m below the points.
+  const PointIndex points({{2.5f, 0.5f, 0.1f}, {3.5f, 0.5f, 0.1f}});
+  const TriangleMesh near = TrianglesNear(grid, points, 0.3);
+  EXPECT_EQ(near.triangles.size(), 4u);  // quads 2 and 3, both triangles
+  EXPECT_NEAR(near.SurfaceArea(), 2.0, 1e-6);
+  for (const auto& t : near.triangles) EXPECT_GE(grid.vertices[t[0]].x(), 2.0f - 1e-6f);
+  EXPECT_EQ(near.vertices.size(), grid.vertices.size());  // the same vertices: indices stay valid
+  EXPECT_EQ(TrianglesNear(grid, points, 0.1).triangles.size(), 0u);  // every centroid is farther
+  EXPECT_TRUE(TrianglesNear(grid, PointIndex({}), 1.0).empty());
 }
 
 }  // namespace

@@ -24,6 +24,7 @@
 #include "arref/pipeline.h"
 #include "arref/registration.h"
 #include "arref/sampling.h"
+#include "arref/spatial_mesh.h"
 #include "step_timer.h"
 
 namespace arref {
@@ -158,6 +159,20 @@ Result<Candidate> RefineForWalk(const MethodInput& in, const PointCloud& all_rou
 // fuse with its shell; fitted without them, the robot is pulled towards them (measured: 3.7 mm
 // towards a table, noise-free). The chosen walk's surface is fused again with the mapped objects
 // round the fitted pose, and the pose polished with it.
+// The scene round the fitted surface, sampled at ArrefIcpParams::context_target_density per
+// voxel face: the triangles within the last polish's reach (2 cm) and a voxel of it.
+std::optional<TargetCloud> DenseTargetNear(const MethodInput& in, const PointCloud& surface_base, const Iso3& T_world_base) {
+  const double density = in.options.arref_icp.context_target_density;
+  if (!(density > 0) || in.voxel_m <= 0) return std::nullopt;
+  PointCloud surface_world = surface_base;
+  surface_world.Transform(T_world_base);
+  const PointIndex near_surface(std::move(surface_world.points));
+  const TriangleMesh near = TrianglesNear(*in.scene_mesh_world, near_surface, kPolishLevels.front() + in.voxel_m);
+  const double count = std::min(density * near.SurfaceArea() / (in.voxel_m * in.voxel_m), 1e6);
+  if (count < 1) return std::nullopt;
+  return TargetCloud(SampleSurface(near, static_cast<std::size_t>(count), in.options.sample_seed));
+}
+
 Candidate RefineInContext(const MethodInput& in, int walk, const TargetCloud& target, const Candidate& best,
                           std::shared_ptr<const PointCloud>* fitted, std::vector<std::string>* stages) {
   auto surface = in.robot->ExpectedInContext(in.voxel_m, walk, *in.scene_mesh_world, best.T_world_base);
@@ -168,7 +183,8 @@ Candidate RefineInContext(const MethodInput& in, int walk, const TargetCloud& ta
   }
   *fitted = std::make_shared<const PointCloud>(Thinned(*surface, in.options.arref_icp.context_points));
   stages->push_back("in-context");
-  return Polish(**fitted, target, best, in.options.arref_icp);
+  const std::optional<TargetCloud> dense = DenseTargetNear(in, **fitted, best.T_world_base);
+  return Polish(**fitted, dense ? *dense : target, best, in.options.arref_icp);
 }
 
 // Which surface explains the scene: a fused headset mesh is matched by the expected surface,

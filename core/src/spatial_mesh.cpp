@@ -2,6 +2,8 @@
 
 #include <string>
 
+#include "arref/nearest_neighbor.h"
+
 namespace arref {
 namespace {
 
@@ -81,6 +83,21 @@ TriangleMesh CropToSphere(const TriangleMesh& mesh, const Vec3& center, double r
     const bool inside = (mesh.vertices[t[0]] - c).squaredNorm() <= r2 || (mesh.vertices[t[1]] - c).squaredNorm() <= r2 ||
                         (mesh.vertices[t[2]] - c).squaredNorm() <= r2;
     if (inside) out.triangles.push_back({keep(t[0]), keep(t[1]), keep(t[2])});
+  }
+  return out;
+}
+
+TriangleMesh TrianglesNear(const TriangleMesh& mesh, const PointIndex& points, double distance_m) {
+  TriangleMesh out;
+  out.vertices = mesh.vertices;
+  if (points.size() == 0) return out;
+  const Aabb near = BoundsOf(points.points()).Grown(static_cast<float>(distance_m));
+  const float limit_sq = static_cast<float>(distance_m * distance_m);
+  for (const Triangle& t : mesh.triangles) {
+    const Vec3f c = (mesh.vertices[t[0]] + mesh.vertices[t[1]] + mesh.vertices[t[2]]) / 3.0f;
+    std::uint32_t i;
+    float sq;
+    if (near.Contains(c) && points.NearestWithin(c, limit_sq, &i, &sq)) out.triangles.push_back(t);
   }
   return out;
 }

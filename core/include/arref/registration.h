@@ -40,6 +40,11 @@ struct ArrefIcpParams {
   // points: 5,000 instead of 2,000 lifted the bench's 480 user-like runs from 467 to 475 within
   // 10 mm (users' own paths: 464 to 469) for about 5 ms a request (docs/engine.md).
   std::size_t context_points = 5000;
+  // ... and against the scene sampled afresh round the fitted robot, this many samples per
+  // voxel face (about 4x the small configuration's 16,000 over the crop): with one sample per
+  // facet or fewer the nearest one often lies on a neighbouring facet and tilts the residual's
+  // plane. 0: polish on the request's own scene samples. See docs/engine.md.
+  double context_target_density = 4.0;
   int refine_top = 2;
   bool final_six_dof = false;      // a last 6-DoF step would absorb tilt of the headset world (robots stand upright)
   // Fit the robot as the headset would mesh it (model_reconstruction.h) rather than its exact

@@ -10,6 +10,8 @@
 
 namespace arref {
 
+class PointIndex;
+
 struct Surface {
   std::uint64_t id = 0;
   TriangleMesh mesh;                     // vertices in the surface's own frame (internal convention)
@@ -39,6 +41,10 @@ class SpatialMesh {
 
 // Keeps triangles with at least one vertex within radius of center (drops unused vertices).
 TriangleMesh CropToSphere(const TriangleMesh& mesh, const Vec3& center, double radius);
+
+// Keeps the triangles whose centroid lies within distance_m of one of the points (the same
+// vertices, unused ones included): the part of a mesh round a fitted model.
+TriangleMesh TrianglesNear(const TriangleMesh& mesh, const PointIndex& points, double distance_m);
 
 // Drops triangles with (near) zero area; the spatial mapper emits some.
 TriangleMesh RemoveDegenerateTriangles(const TriangleMesh& mesh, double min_area = 1e-12);

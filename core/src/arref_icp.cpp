@@ -155,10 +155,6 @@ Result<Candidate> RefineForWalk(const MethodInput& in, const PointCloud& all_rou
   return Polish(**fitted, target, best, p);
 }
 
-// Objects near the robot (a table 0.2 m from its base) hide parts of it from the walker and
-// fuse with its shell; fitted without them, the robot is pulled towards them (measured: 3.7 mm
-// towards a table, noise-free). The chosen walk's surface is fused again with the mapped objects
-// round the fitted pose, and the pose polished with it.
 // The scene round the fitted surface, sampled at ArrefIcpParams::context_target_density per
 // voxel face: the triangles within the last polish's reach (2 cm) and a voxel of it.
 std::optional<TargetCloud> DenseTargetNear(const MethodInput& in, const PointCloud& surface_base, const Iso3& T_world_base) {
@@ -173,6 +169,10 @@ std::optional<TargetCloud> DenseTargetNear(const MethodInput& in, const PointClo
   return TargetCloud(SampleSurface(near, static_cast<std::size_t>(count), in.options.sample_seed));
 }
 
+// Objects near the robot (a table 0.2 m from its base) hide parts of it from the walker and
+// fuse with its shell; fitted without them, the robot is pulled towards them (measured: 3.7 mm
+// towards a table, noise-free). The chosen walk's surface is fused again with the mapped objects
+// round the fitted pose, and the pose polished with it.
 Candidate RefineInContext(const MethodInput& in, int walk, const TargetCloud& target, const Candidate& best,
                           std::shared_ptr<const PointCloud>* fitted, std::vector<std::string>* stages) {
   auto surface = in.robot->ExpectedInContext(in.voxel_m, walk, *in.scene_mesh_world, best.T_world_base);

@@ -43,6 +43,10 @@ PointCloud PointCloud::Subset(const std::vector<std::uint32_t>& keep) const {
   return out;
 }
 
+Vec3f Centroid(const TriangleMesh& mesh, const Triangle& t) {
+  return (mesh.vertices[t[0]] + mesh.vertices[t[1]] + mesh.vertices[t[2]]) / 3.0f;
+}
+
 Aabb BoundsOf(const std::vector<Vec3f>& points) {
   Aabb box;
   for (const auto& p : points) box.Extend(p);

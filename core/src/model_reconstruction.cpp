@@ -38,10 +38,6 @@ void NearerOf(const RangeImage& other, const std::vector<float>& other_incidence
       (*range)[i] = other[i], (*incidence)[i] = other_incidence[i];
 }
 
-Vec3f Centroid(const TriangleMesh& mesh, const Triangle& t) {
-  return (mesh.vertices[t[0]] + mesh.vertices[t[1]] + mesh.vertices[t[2]]) / 3.0f;
-}
-
 // The triangles that `keep` accepts, on the same vertices.
 template <class Keep>
 TriangleMesh KeepTriangles(const TriangleMesh& mesh, Keep keep) {

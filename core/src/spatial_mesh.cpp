@@ -94,7 +94,7 @@ TriangleMesh TrianglesNear(const TriangleMesh& mesh, const PointIndex& points, d
   const Aabb near = BoundsOf(points.points()).Grown(static_cast<float>(distance_m));
   const float limit_sq = static_cast<float>(distance_m * distance_m);
   for (const Triangle& t : mesh.triangles) {
-    const Vec3f c = (mesh.vertices[t[0]] + mesh.vertices[t[1]] + mesh.vertices[t[2]]) / 3.0f;
+    const Vec3f c = Centroid(mesh, t);
     std::uint32_t i;
     float sq;
     if (near.Contains(c) && points.NearestWithin(c, limit_sq, &i, &sq)) out.triangles.push_back(t);

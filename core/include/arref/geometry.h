@@ -55,6 +55,7 @@ struct Aabb {
   Aabb Grown(float margin) const { return {min.array() - margin, max.array() + margin}; }
 };
 Aabb BoundsOf(const std::vector<Vec3f>& points);
+Vec3f Centroid(const TriangleMesh& mesh, const Triangle& t);
 
 // Builds an isometry from translation + unit quaternion.
 Iso3 MakePose(const Vec3& position, const Quat& orientation);

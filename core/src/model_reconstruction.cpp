@@ -38,16 +38,6 @@ void NearerOf(const RangeImage& other, const std::vector<float>& other_incidence
       (*range)[i] = other[i], (*incidence)[i] = other_incidence[i];
 }
 
-// The triangles that `keep` accepts, on the same vertices.
-template <class Keep>
-TriangleMesh KeepTriangles(const TriangleMesh& mesh, Keep keep) {
-  TriangleMesh out;
-  out.vertices = mesh.vertices;
-  for (const Triangle& t : mesh.triangles)
-    if (keep(t)) out.triangles.push_back(t);
-  return out;
-}
-
 // The triangles whose bounds overlap the box (a triangle larger than the box is kept too).
 TriangleMesh TrianglesInBox(const TriangleMesh& mesh, const Aabb& box) {
   return KeepTriangles(mesh, [&](const Triangle& t) {

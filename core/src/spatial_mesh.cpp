@@ -88,26 +88,19 @@ TriangleMesh CropToSphere(const TriangleMesh& mesh, const Vec3& center, double r
 }
 
 TriangleMesh TrianglesNear(const TriangleMesh& mesh, const PointIndex& points, double distance_m) {
-  TriangleMesh out;
-  out.vertices = mesh.vertices;
-  if (points.size() == 0) return out;
+  // Without points the box is empty (BoundsOf) and no triangle is kept.
   const Aabb near = BoundsOf(points.points()).Grown(static_cast<float>(distance_m));
   const float limit_sq = static_cast<float>(distance_m * distance_m);
-  for (const Triangle& t : mesh.triangles) {
+  return KeepTriangles(mesh, [&](const Triangle& t) {
     const Vec3f c = Centroid(mesh, t);
     std::uint32_t i;
     float sq;
-    if (near.Contains(c) && points.NearestWithin(c, limit_sq, &i, &sq)) out.triangles.push_back(t);
-  }
-  return out;
+    return near.Contains(c) && points.NearestWithin(c, limit_sq, &i, &sq);
+  });
 }
 
 TriangleMesh RemoveDegenerateTriangles(const TriangleMesh& mesh, double min_area) {
-  TriangleMesh out;
-  out.vertices = mesh.vertices;
-  for (const auto& t : mesh.triangles)
-    if (TriangleArea(mesh, t) > min_area) out.triangles.push_back(t);
-  return out;
+  return KeepTriangles(mesh, [&](const Triangle& t) { return TriangleArea(mesh, t) > min_area; });
 }
 
 }  // namespace arref

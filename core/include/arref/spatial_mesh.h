@@ -42,6 +42,16 @@ class SpatialMesh {
 // Keeps triangles with at least one vertex within radius of center (drops unused vertices).
 TriangleMesh CropToSphere(const TriangleMesh& mesh, const Vec3& center, double radius);
 
+// The triangles that `keep` (a predicate on a Triangle) accepts, on the same vertices.
+template <class Keep>
+TriangleMesh KeepTriangles(const TriangleMesh& mesh, Keep keep) {
+  TriangleMesh out;
+  out.vertices = mesh.vertices;
+  for (const Triangle& t : mesh.triangles)
+    if (keep(t)) out.triangles.push_back(t);
+  return out;
+}
+
 // Keeps the triangles whose centroid lies within distance_m of one of the points (the same
 // vertices, unused ones included): the part of a mesh round a fitted model.
 TriangleMesh TrianglesNear(const TriangleMesh& mesh, const PointIndex& points, double distance_m);

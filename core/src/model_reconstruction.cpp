@@ -196,7 +196,7 @@ Result<PointCloud> ExpectedSurfaceMaker::MakeInContext(const ReconstructionOptio
   const TriangleMesh context_base = Context(scene_world, T_world_base, clearance_m);
   if (context_base.empty()) return Make(options, samples);
   // The robot's caster is kept; the objects get their own, and each pixel sees the nearer.
-  auto caster = RayCaster::Create(context_base);
+  auto caster = RayCaster::Create(context_base, RayCaster::Build::kForOneUse);
   if (!caster.ok()) return caster.status().WithContext("expected surface in context");
   std::vector<Vec3f> near = FusedPart(context_base, options);
   if (near.empty()) return Sample(options, *caster, nullptr, samples);  // objects that only hide the robot

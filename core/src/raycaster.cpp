@@ -50,12 +50,14 @@ RayCaster::RayCaster(RayCaster&&) noexcept = default;
 RayCaster& RayCaster::operator=(RayCaster&&) noexcept = default;
 RayCaster::~RayCaster() = default;
 
-Result<RayCaster> RayCaster::Create(const TriangleMesh& mesh) {
+Result<RayCaster> RayCaster::Create(const TriangleMesh& mesh, Build build) {
   if (mesh.empty()) return Status::FailedPrecondition("ray casting: the scene has no triangles");
+  const RTCBuildQuality quality = build == Build::kForOneUse ? RTC_BUILD_QUALITY_LOW : RTC_BUILD_QUALITY_MEDIUM;
   auto impl = std::make_unique<Impl>();
   impl->device = rtcNewDevice(nullptr);
   if (!impl->device) return Status::Internal("ray casting: cannot create an Embree device");
   impl->scene = rtcNewScene(impl->device);
+  rtcSetSceneBuildQuality(impl->scene, quality);
   RTCGeometry geom = rtcNewGeometry(impl->device, RTC_GEOMETRY_TYPE_TRIANGLE);
   auto* vb = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
                                                          3 * sizeof(float), mesh.vertices.size()));
@@ -63,6 +65,7 @@ Result<RayCaster> RayCaster::Create(const TriangleMesh& mesh) {
                                                             3 * sizeof(unsigned), mesh.triangles.size()));
   for (std::size_t i = 0; i < mesh.vertices.size(); ++i) std::memcpy(vb + 3 * i, mesh.vertices[i].data(), 12);
   for (std::size_t i = 0; i < mesh.triangles.size(); ++i) std::memcpy(ib + 3 * i, mesh.triangles[i].data(), 12);
+  rtcSetGeometryBuildQuality(geom, quality);
   rtcCommitGeometry(geom);
   rtcAttachGeometry(impl->scene, geom);
   rtcReleaseGeometry(geom);

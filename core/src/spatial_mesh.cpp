@@ -1,5 +1,7 @@
 #include "arref/spatial_mesh.h"
 
+#include <tbb/parallel_for.h>
+
 #include <string>
 
 #include "arref/nearest_neighbor.h"
@@ -84,6 +86,16 @@ TriangleMesh CropToSphere(const TriangleMesh& mesh, const Vec3& center, double r
                         (mesh.vertices[t[2]] - c).squaredNorm() <= r2;
     if (inside) out.triangles.push_back({keep(t[0]), keep(t[1]), keep(t[2])});
   }
+  return out;
+}
+
+TriangleMesh KeepTriangles(const TriangleMesh& mesh, const std::function<bool(const Triangle&)>& keep) {
+  std::vector<char> kept(mesh.triangles.size());
+  tbb::parallel_for(std::size_t{0}, kept.size(), [&](std::size_t i) { kept[i] = keep(mesh.triangles[i]); });
+  TriangleMesh out;
+  out.vertices = mesh.vertices;
+  for (std::size_t i = 0; i < kept.size(); ++i)
+    if (kept[i]) out.triangles.push_back(mesh.triangles[i]);
   return out;
 }
 

@@ -41,8 +41,12 @@ using RangeImage = std::vector<float>;
 
 class RayCaster {
  public:
+  // How Embree builds its BVH: kForTracing (its default) for scenes rendered from many views,
+  // kForOneUse for a scene built per request: about 3x faster to build (5.7 against 2 ms for
+  // 38,000 triangles), a little slower to trace.
+  enum class Build { kForTracing, kForOneUse };
   // The scene is copied into Embree's buffers; the mesh may be dropped afterwards.
-  static Result<RayCaster> Create(const TriangleMesh& scene);
+  static Result<RayCaster> Create(const TriangleMesh& scene, Build build = Build::kForTracing);
   RayCaster(RayCaster&&) noexcept;
   RayCaster& operator=(RayCaster&&) noexcept;
   ~RayCaster();

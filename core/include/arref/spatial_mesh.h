@@ -2,6 +2,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <string>
 
@@ -42,15 +43,9 @@ class SpatialMesh {
 // Keeps triangles with at least one vertex within radius of center (drops unused vertices).
 TriangleMesh CropToSphere(const TriangleMesh& mesh, const Vec3& center, double radius);
 
-// The triangles that `keep` (a predicate on a Triangle) accepts, on the same vertices.
-template <class Keep>
-TriangleMesh KeepTriangles(const TriangleMesh& mesh, Keep keep) {
-  TriangleMesh out;
-  out.vertices = mesh.vertices;
-  for (const Triangle& t : mesh.triangles)
-    if (keep(t)) out.triangles.push_back(t);
-  return out;
-}
+// The triangles that `keep` accepts, on the same vertices and in the same order. `keep` is
+// called from several threads at once (the per-request tests are nearest-neighbour queries).
+TriangleMesh KeepTriangles(const TriangleMesh& mesh, const std::function<bool(const Triangle&)>& keep);
 
 // Keeps the triangles whose centroid lies within distance_m of one of the points (the same
 // vertices, unused ones included): the part of a mesh round a fitted model.

@@ -12,6 +12,7 @@
 #include <string>
 
 #include "arref/nearest_neighbor.h"
+#include "arref/raycaster.h"
 #include "arref/robot_model.h"
 #include "arref/sampling.h"
 #include "arref/sim/cell_simulator.h"
@@ -189,6 +190,32 @@ TEST(CellSimulator, FusedMeshLiesOnTheTruthAndFacesFreeSpace) {
 
 // The head-tracking knob: one number for position and orientation (the defaults' pair at
 // 4 mm), and a fused mesh that strays from the truth as it grows.
+// A caster built for one use (per request) sees what the default build sees: the BVH differs,
+// the nearest hit along each ray does not.
+TEST(RayCaster, BuiltForOneUseRendersTheSameImages) {
+  const TriangleMesh scene = MergedWorld(SmallCell());
+  auto tracing = RayCaster::Create(scene);
+  auto one_use = RayCaster::Create(scene, RayCaster::Build::kForOneUse);
+  ASSERT_TRUE(tracing.ok() && one_use.ok());
+  const PinholeCamera camera = PinholeCamera::FromFov(160, 120, 70);
+  std::size_t hits = 0;
+  for (int view = 0; view < 6; ++view) {
+    const double azimuth = view * 60 * kDeg;
+    const Iso3 T_world_camera = LookAt(Vec3(2 * std::cos(azimuth), 2 * std::sin(azimuth), 1.6), Vec3(0, 0, 0.6));
+    std::vector<float> incidence_a, incidence_b;
+    const RangeImage a = tracing->Render(camera, T_world_camera, 10, &incidence_a);
+    const RangeImage b = one_use->Render(camera, T_world_camera, 10, &incidence_b);
+    ASSERT_EQ(a.size(), b.size());
+    for (std::size_t i = 0; i < a.size(); ++i) {
+      ASSERT_EQ(a[i] > 0, b[i] > 0) << "view " << view << " pixel " << i;
+      EXPECT_NEAR(a[i], b[i], 1e-6) << "view " << view << " pixel " << i;
+      EXPECT_NEAR(incidence_a[i], incidence_b[i], 1e-5) << "view " << view << " pixel " << i;
+      hits += a[i] > 0;
+    }
+  }
+  EXPECT_GT(hits, 6u * 160 * 120 / 8);  // robot, floor and walls: about a fifth of the pixels
+}
+
 TEST(CellSimulator, PoseJitterBendsTheMesh) {
   ScanOptions scan;
   SetPoseJitter(&scan, 0.004);

@@ -94,6 +94,22 @@ TEST(SpatialMesh, CropKeepsTrianglesTouchingTheSphere) {
   EXPECT_TRUE(CropToSphere(grid, Vec3(100, 0, 0), 1.0).empty());
 }
 
+// Triangles are tested in parallel; the kept ones come out in the mesh's order, on its vertices.
+TEST(SpatialMesh, KeepTrianglesKeepsOrderAndVertices) {
+  TriangleMesh grid;
+  for (int i = 0; i < 5000; ++i) grid.Append(Quad(0).mesh, MakeYawPose(i % 100, i / 100, 0, 0));
+  const auto keep = [&](const Triangle& t) { return (t[0] / 4) % 3 == 0 || t[1] % 7 == 0; };
+  std::vector<Triangle> expected;
+  for (const Triangle& t : grid.triangles)
+    if (keep(t)) expected.push_back(t);
+  const TriangleMesh kept = KeepTriangles(grid, keep);
+  EXPECT_EQ(kept.triangles, expected);
+  EXPECT_GT(expected.size(), grid.triangles.size() / 4);
+  EXPECT_LT(expected.size(), grid.triangles.size() / 2);
+  EXPECT_EQ(kept.vertices, grid.vertices);
+  EXPECT_TRUE(KeepTriangles(TriangleMesh{}, keep).empty());
+}
+
 // The part of a mesh round a fitted model: a triangle is kept when its centroid lies within
 // the distance of a model point, whatever its vertices' distances.
 TEST(SpatialMesh, TrianglesNearKeepsTheMeshRoundThePoints) {

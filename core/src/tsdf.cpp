@@ -81,7 +81,7 @@ Eigen::Vector3i TsdfVolume::BlockOf(const Vec3& p, double voxel_m) {
 
 Status TsdfVolume::Integrate(const PinholeCamera& camera, const Iso3& T_volume_camera, const RangeImage& range,
                              const std::vector<float>& incidence) {
-  return Integrate(camera, T_volume_camera, range, incidence, BandBlocks(options_, camera, T_volume_camera, range));
+  return Integrate(camera, T_volume_camera, range, incidence, BandBlocks(options_, camera, T_volume_camera, range, this));
 }
 
 Status TsdfVolume::Integrate(const PinholeCamera& camera, const Iso3& T_volume_camera, const RangeImage& range,
@@ -98,7 +98,8 @@ Status TsdfVolume::Integrate(const PinholeCamera& camera, const Iso3& T_volume_c
 // Collected per row in parallel, merged in row order so block order (and the mesh) is
 // deterministic.
 std::vector<Eigen::Vector3i> TsdfVolume::BandBlocks(const TsdfOptions& options, const PinholeCamera& camera,
-                                                    const Iso3& T_volume_camera, const RangeImage& range) {
+                                                    const Iso3& T_volume_camera, const RangeImage& range,
+                                                    const TsdfVolume* allocating) {
   const double trunc = options.truncation_m;
   const double block_m = B * options.voxel_m;
   const double step = std::min(0.5 * block_m, trunc);
@@ -114,7 +115,10 @@ std::vector<Eigen::Vector3i> TsdfVolume::BandBlocks(const TsdfOptions& options, 
         const Vec3 p = T_volume_camera.translation() + t * dir;
         if ((p - options.crop_center).norm() > keep_radius) continue;
         const Eigen::Vector3i b = BlockOf(p, options.voxel_m);
-        if (const Key k = KeyOf(b); k != last) rows[v].push_back(b), last = k;
+        const Key k = KeyOf(b);
+        if (k == last) continue;
+        last = k;
+        if (!allocating || allocating->WouldAllocate(k)) rows[v].push_back(b);
       }
     }
   });
@@ -130,7 +134,7 @@ std::vector<Eigen::Vector3i> TsdfVolume::BandBlocks(const TsdfOptions& options, 
 Status TsdfVolume::Allocate(const std::vector<Eigen::Vector3i>& band) {
   for (const Eigen::Vector3i& b : band) {
     const Key k = KeyOf(b);
-    if ((near_only_ && !near_.count(k)) || index_.count(k)) continue;
+    if (!WouldAllocate(k)) continue;
     if (blocks_.size() >= options_.max_blocks)
       return Status::ResourceExhausted("TSDF fusion needs more than " + std::to_string(options_.max_blocks) +
                                        " voxel blocks: fusion.voxel_m is too small for the scene");

@@ -50,9 +50,11 @@ class TsdfVolume {
                    const std::vector<float>& incidence, const std::vector<Eigen::Vector3i>& band);
 
   // The blocks within the truncation band of an image's measured pixels and the crop, each
-  // once, in the order Integrate allocates them.
+  // once, in the order Integrate allocates them. With `allocating`, only those it would add
+  // (near and not yet there), tested in parallel: after the first views nearly every block is.
   static std::vector<Eigen::Vector3i> BandBlocks(const TsdfOptions& options, const PinholeCamera& camera,
-                                                 const Iso3& T_volume_camera, const RangeImage& range);
+                                                 const Iso3& T_volume_camera, const RangeImage& range,
+                                                 const TsdfVolume* allocating = nullptr);
 
   // Naive Surface Nets in the volume frame: a vertex per sign-changing cell, a quad per
   // sign-changing edge, only where every voxel involved was observed. Counter-clockwise
@@ -79,6 +81,7 @@ class TsdfVolume {
   Eigen::Vector3i BlockOf(const Vec3& p) const { return BlockOf(p, options_.voxel_m); }
   void MarkNearBlocks(const std::vector<Vec3f>& points);
   Status Allocate(const std::vector<Eigen::Vector3i>& band);
+  bool WouldAllocate(Key k) const { return (!near_only_ || near_.count(k)) && !index_.count(k); }
   template <class Scalar>
   void UpdateVoxels(Block& block, const PinholeCamera& camera, const Eigen::Matrix<Scalar, 3, 1>& origin,
                     const Eigen::Matrix<Scalar, 3, 3>& step, const RangeImage& range,

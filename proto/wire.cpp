@@ -1,5 +1,6 @@
 #include "wire.h"
 
+#include <fmt/format.h>
 #include <google/protobuf/io/zero_copy_stream_impl_lite.h>
 #include <google/protobuf/util/delimited_message_util.h>
 
@@ -150,6 +151,34 @@ Result<Surface> SurfaceFromProto(const pb::SurfaceUpsert& m) {
   s.T_world_surface = *T;
   MeshToRos(s.mesh, *frame);
   return s;
+}
+
+pb::HeadPath HeadPathToProto(const std::vector<Vec3>& positions_world, FrameConvention frame) {
+  pb::HeadPath m;
+  m.set_frame(ToProto(frame));
+  for (const Vec3& p : positions_world) {
+    const Vec3 q = PositionFromRos(p, frame);
+    pb::Vec3* v = m.add_positions();
+    v->set_x(q.x()), v->set_y(q.y()), v->set_z(q.z());
+  }
+  return m;
+}
+
+Result<std::vector<Vec3>> HeadPathFromProto(const pb::HeadPath& path, std::size_t max_positions) {
+  auto frame = FromProto(path.frame());
+  if (!frame.ok()) return frame.status().WithContext("head_path.frame");
+  if (static_cast<std::size_t>(path.positions_size()) > max_positions)
+    return Status::InvalidArgument(fmt::format("head_path has {} positions, at most {} allowed", path.positions_size(),
+                                               max_positions));
+  std::vector<Vec3> out;
+  out.reserve(static_cast<std::size_t>(path.positions_size()));
+  for (const pb::Vec3& v : path.positions()) {
+    const Vec3 p(v.x(), v.y(), v.z());
+    if (!p.allFinite())
+      return Status::InvalidArgument(fmt::format("head_path.positions[{}] is not finite", out.size()));
+    out.push_back(PositionToRos(p, *frame));
+  }
+  return out;
 }
 
 void MatrixToProto(const Iso3& T, google::protobuf::RepeatedField<double>* out) {

@@ -6,6 +6,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <string>
+#include <vector>
 
 #include "arref/frames.h"
 #include "arref/geometry.h"
@@ -42,6 +43,11 @@ Result<Iso3> PoseFromProto(const pb::Pose& pose, FrameConvention frame);
 // through SpatialMesh::Upsert). quantize_scale > 0 sends int16 vertices with that step.
 pb::SurfaceUpsert SurfaceToProto(const Surface& surface, FrameConvention frame, double quantize_scale = 0.0);
 Result<Surface> SurfaceFromProto(const pb::SurfaceUpsert& message);
+
+// Head positions in the internal frame, and back. FromProto checks the frame, the count
+// (at most max_positions) and finiteness, naming the first bad position.
+pb::HeadPath HeadPathToProto(const std::vector<Vec3>& positions_world, FrameConvention frame);
+Result<std::vector<Vec3>> HeadPathFromProto(const pb::HeadPath& path, std::size_t max_positions);
 
 // Row-major 4x4 of an internal transform.
 void MatrixToProto(const Iso3& T, google::protobuf::RepeatedField<double>* out);

@@ -15,6 +15,7 @@ using Clock = std::chrono::steady_clock;
 
 constexpr std::size_t kReadChunk = 64 * 1024;
 constexpr std::size_t kMaxPingPayload = 64 * 1024;
+constexpr std::size_t kMaxHeadPathPositions = 10000;  // RegisterRequest.head_path (arref.proto)
 constexpr auto kLinger = std::chrono::seconds(2);  // time to flush a final error before closing
 
 std::chrono::milliseconds Seconds(double s) { return std::chrono::milliseconds(static_cast<long long>(s * 1000)); }
@@ -517,6 +518,11 @@ Result<RegistrationOptions> Session::RequestOptions(const pb::RegisterRequest& m
     auto method = ParseMethod(m.method());
     if (!method.ok()) return method.status().WithContext("RegisterRequest.method");
     o.method = *method;
+  }
+  if (m.has_head_path()) {
+    auto path = wire::HeadPathFromProto(m.head_path(), kMaxHeadPathPositions);
+    if (!path.ok()) return path.status().WithContext("RegisterRequest");
+    o.head_path_world = std::move(*path);
   }
   const pb::RegistrationParams& p = m.params();
   if (p.has_crop_radius_m()) {

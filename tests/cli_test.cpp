@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <filesystem>
+#include <fstream>
 #include <nlohmann/json.hpp>
 
 #include "test_support.h"
@@ -126,6 +127,40 @@ TEST_F(CliTest, DefaultMethodFitsTheExpectedHeadsetSurface) {
     ASSERT_EQ(r.exit_code, 0) << r.err;
     const auto stages = nlohmann::json::parse(r.out)["stages_run"];
     EXPECT_EQ(std::find(stages.begin(), stages.end(), "in-context"), stages.end()) << variant << stages.dump();
+  }
+}
+
+// The truth file of `arref simulate` carries the walker's head path, as an app would log it.
+TEST_F(CliTest, HeadPathGivesTheRefitItsEyes) {
+  const std::string base = Simulate(43, "--seeds 2 --base-yaw 120");  // the user mapped the robot's left-back side
+  const auto truth = nlohmann::json::parse(std::ifstream(base + ".json"));
+  ASSERT_EQ(truth["head_path"].size(), 24u);
+  for (int seed = 0; seed < 2; ++seed) {
+    const auto r = RunCommand(Arref() + " register --scene " + base + ".ply --truth " + base + ".json --head-path " +
+                              base + ".json --json --seed-index " + std::to_string(seed));
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    const auto j = nlohmann::json::parse(r.out);
+    EXPECT_EQ(j["status"], "OK") << j.value("status_reason", "");
+    const auto& stages = j["stages_run"];
+    EXPECT_NE(std::find(stages.begin(), stages.end(), "head-path"), stages.end()) << stages.dump();
+    EXPECT_LT(j["add_m"].get<double>(), 0.010);
+  }
+  // A path nowhere near the robot is not used, and says so.
+  nlohmann::json far = {{"frame", "ros"}, {"head_path", {{100, 0, 1.6}, {100, 1, 1.6}, {100, 2, 1.6}}}};
+  std::ofstream(base + "-far.json") << far.dump();
+  auto r = RunCommand(Arref() + " register --scene " + base + ".ply --truth " + base + ".json --head-path " + base +
+                      "-far.json --json");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const auto stages = nlohmann::json::parse(r.out)["stages_run"];
+  EXPECT_NE(std::find(stages.begin(), stages.end(), "head-path-unused"), stages.end()) << stages.dump();
+  EXPECT_NE(r.err.find("fewer than 3 positions"), std::string::npos) << r.err;
+  // Bad files name the problem.
+  std::ofstream(base + "-bad.json") << R"({"head_path": [[1, 2, 3], [1, "x", 3]]})";
+  for (const auto& [file, text] : std::vector<std::pair<std::string, std::string>>{
+           {base + "-bad.json", "position 1 is not [x,y,z]"}, {base + ".ply", "--head-path"}, {base + "-none.json", "cannot open"}}) {
+    r = RunCommand(Arref() + " register --scene " + base + ".ply --truth " + base + ".json --head-path " + file);
+    EXPECT_EQ(r.exit_code, 3) << file << "\n" << r.err;
+    EXPECT_NE(r.err.find(text), std::string::npos) << file << "\n" << r.err;
   }
 }
 

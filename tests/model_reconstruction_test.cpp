@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <numbers>
 
 #include "arref/model_reconstruction.h"
 #include "arref/pipeline.h"
@@ -111,6 +112,44 @@ TEST(ExpectedSurface, MadeTogetherAsAlone) {
     EXPECT_EQ(alone->normals, together[i]->normals) << i;
   }
   EXPECT_NE(together[1]->points, together[3]->points);
+}
+
+// The eyes of an arc as ExpectedSurfaceMaker places them, given one by one instead.
+std::vector<std::array<double, 3>> EyesOfArc(const ReconstructionOptions& o) {
+  std::vector<std::array<double, 3>> eyes;
+  const double step = o.arc_deg / (o.azimuths - 1);
+  for (int a = 0; a < o.azimuths; ++a) {
+    double degrees = std::fmod(o.arc_center_deg - o.arc_deg / 2 + step * a, 360.0);
+    if (degrees < 0) degrees += 360.0;
+    const double azimuth = degrees * std::numbers::pi / 180;
+    eyes.push_back({o.distance_m * std::cos(azimuth), o.distance_m * std::sin(azimuth), o.eye_height_m});
+  }
+  return eyes;
+}
+
+TEST(ExpectedSurface, GivenEyesReplaceTheArc) {
+  auto maker = ExpectedSurfaceMaker::Create(Box(0.4f, 0.4f, 0.8f), 1);
+  ASSERT_TRUE(maker.ok()) << maker.status().ToString();
+  ReconstructionOptions arc;
+  arc.voxel_m = kVoxel, arc.arc_deg = 120, arc.arc_center_deg = 0, arc.azimuths = 9;
+  ReconstructionOptions given;
+  given.voxel_m = kVoxel;
+  given.eyes_base = EyesOfArc(arc);
+  auto from_arc = maker->Make(arc, 3000);
+  auto from_eyes = maker->Make(given, 3000);
+  ASSERT_TRUE(from_arc.ok() && from_eyes.ok()) << from_eyes.status().ToString();
+  EXPECT_EQ(from_arc->points, from_eyes->points) << "the same eyes, the same surface";
+  // Eyes behind the robot (-x) see its back, not its front, whatever arc the options name.
+  for (auto& eye : given.eyes_base) eye[0] = -eye[0];
+  auto from_back = maker->Make(given, 3000);
+  ASSERT_TRUE(from_back.ok()) << from_back.status().ToString();
+  auto facing = [](const PointCloud& c, float sign) {
+    return std::count_if(c.normals.begin(), c.normals.end(), [&](const Vec3f& n) { return sign * n.x() > 0.9f; });
+  };
+  EXPECT_GT(facing(*from_arc, 1), 300);
+  EXPECT_GT(facing(*from_arc, 1), 8 * facing(*from_arc, -1));
+  EXPECT_GT(facing(*from_back, -1), 300);
+  EXPECT_GT(facing(*from_back, -1), 8 * facing(*from_back, 1));
 }
 
 // A table top (0.04 m thick, 0.5 m high) between a walker on the +x side and a box robot.

@@ -495,6 +495,21 @@ TEST(ServerIntegration, ClearErrorsForBadRequests) {
   e = h.AwaitError();
   EXPECT_EQ(e.error().code(), pb::ERROR_CODE_INVALID_ARGUMENT);
   EXPECT_NE(e.error().message().find("crop_radius_m"), std::string::npos) << e.error().message();
+  req.mutable_register_request()->clear_params();
+  auto* path = req.mutable_register_request()->mutable_head_path();
+  for (double x : {1.0, std::nan(""), 2.0}) {
+    auto* p = path->add_positions();
+    p->set_x(x), p->set_y(0), p->set_z(1.6);
+  }
+  h.Send(req);  // no frame
+  e = h.AwaitError();
+  EXPECT_EQ(e.error().code(), pb::ERROR_CODE_INVALID_ARGUMENT);
+  EXPECT_NE(e.error().message().find("head_path.frame"), std::string::npos) << e.error().message();
+  path->set_frame(pb::FRAME_CONVENTION_UNITY);
+  h.Send(req);
+  e = h.AwaitError();
+  EXPECT_EQ(e.error().code(), pb::ERROR_CODE_INVALID_ARGUMENT);
+  EXPECT_NE(e.error().message().find("head_path.positions[1] is not finite"), std::string::npos) << e.error().message();
   h.Request(5);  // the session survived all of it
   EXPECT_EQ(h.AwaitResult(5).result().status(), pb::RESULT_STATUS_OK);
 }

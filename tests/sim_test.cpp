@@ -289,6 +289,21 @@ TEST(CellSimulator, TheWalkersPathDecidesWhatIsMapped) {
   EXPECT_NE(refused.status().ToString().find("scan.path_wander_m"), std::string::npos) << refused.status().ToString();
 }
 
+// What the app would log: one tracked head position per view, on the walker's arc round the base.
+TEST(CellSimulator, HeadPathIsWhereTrackingPutTheHeadset) {
+  SimOptions o = SmallOptions();
+  o.scan.path_arc_deg = 120, o.scan.path_center_deg = 180;
+  auto cell = SimulateCell(BuiltinRobot(), o, 2);
+  ASSERT_TRUE(cell.ok()) << cell.status().ToString();
+  ASSERT_EQ(cell->head_path_world.size(), static_cast<std::size_t>(o.scan.views));
+  for (const Vec3& p : cell->head_path_world) {
+    const Vec3 eye = cell->T_world_base.inverse() * p;  // the robot stands on the floor at the cell origin
+    EXPECT_NEAR(eye.head<2>().norm(), o.scan.path_radius_m, 1e-9);
+    EXPECT_NEAR(eye.z(), o.scan.eye_height_m, 1e-9);
+    EXPECT_LT(eye.x(), -0.45 * o.scan.path_radius_m) << "behind the robot, where the path was centred";
+  }
+}
+
 TEST(CellSimulator, PartOfTheRobotIsNeverSeen) {
   const SimulatedCell& cell = SmallCell();
   auto posed = BuiltinRobot().PosedMesh(cell.joints);

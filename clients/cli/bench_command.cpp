@@ -29,6 +29,7 @@ struct BenchArgs {
   bool seed_any_yaw = false;
   bool walk_any_side = false;
   bool varied_walk = false;
+  bool head_path = false;
   double walk_arc_deg = 0.0;
   double seed_max_offset = 0.0;
   double pose_jitter = -1;
@@ -64,6 +65,7 @@ int Run(const BenchArgs& args) {
   config.variation.seed_noise.max_horizontal_m = args.seed_max_offset;
   config.variation.walk_any_side = args.walk_any_side;
   config.variation.varied_walk = args.varied_walk;
+  config.head_path = args.head_path;
   config.variation.walk_arc_deg = args.walk_arc_deg;
   config.variation.pose_jitter_m = args.pose_jitter;
   std::error_code ec;
@@ -122,6 +124,9 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
                 "Scenes experiment: each cell's user walks a path of their own: arc 40 deg either side of --walk-arc, "
                 "centre within 30 deg, 1.5-2.4 m off, eyes 1.5-1.8 m high, 16-32 views, 0.1 m wander (default: the "
                 "simulator's regular arc)");
+  cmd->add_flag("--head-path", args->head_path,
+                "Scenes experiment: each request sends where its cell's user walked while mapping, as a HoloLens app "
+                "can (RegisterRequest.head_path)");
   cmd->add_option("--walk-arc", args->walk_arc_deg,
                   "Scenes experiment: the arc the simulated user walks round the robot, deg (default 220)")
       ->check(CLI::Range(30.0, 360.0));

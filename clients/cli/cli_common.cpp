@@ -137,6 +137,29 @@ Result<Iso3> PoseFromJson(const nlohmann::json& j, FrameConvention frame) {
   return PoseFromNumbers(n, frame);
 }
 
+nlohmann::json PositionsToJson(const std::vector<Vec3>& positions, FrameConvention frame) {
+  nlohmann::json out = nlohmann::json::array();
+  for (const Vec3& p : positions) {
+    const Vec3 q = PositionFromRos(p, frame);
+    out.push_back({q.x(), q.y(), q.z()});
+  }
+  return out;
+}
+
+Result<std::vector<Vec3>> PositionsFromJson(const nlohmann::json& j, FrameConvention frame) {
+  if (!j.is_array()) return Status::InvalidArgument("positions must be an array of [x,y,z]");
+  std::vector<Vec3> out;
+  for (const auto& p : j) {
+    const std::string where = "position " + std::to_string(out.size());
+    if (!p.is_array() || p.size() != 3 || !p[0].is_number() || !p[1].is_number() || !p[2].is_number())
+      return Status::InvalidArgument(where + " is not [x,y,z]");
+    const Vec3 v(p[0].get<double>(), p[1].get<double>(), p[2].get<double>());
+    if (!v.allFinite()) return Status::InvalidArgument(where + " is not finite");
+    out.push_back(PositionToRos(v, frame));
+  }
+  return out;
+}
+
 Result<nlohmann::json> ReadJsonFile(const std::string& path) {
   std::ifstream in(path);
   if (!in) return Status::NotFound("cannot open " + path);

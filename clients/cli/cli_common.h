@@ -47,6 +47,10 @@ Result<Iso3> MatrixFromJson(const nlohmann::json& j);
 nlohmann::json PoseToJson(const Iso3& T, FrameConvention frame);
 Result<Iso3> PoseFromJson(const nlohmann::json& j, FrameConvention frame);
 
+// [[x,y,z], ...] of internal positions (a head path), in the given convention, and back.
+nlohmann::json PositionsToJson(const std::vector<Vec3>& positions, FrameConvention frame);
+Result<std::vector<Vec3>> PositionsFromJson(const nlohmann::json& j, FrameConvention frame);
+
 Result<nlohmann::json> ReadJsonFile(const std::string& path);
 Status WriteJsonFile(const nlohmann::json& j, const std::string& path);
 

@@ -22,6 +22,7 @@ struct RegisterArgs {
   int seed_index = 0;
   std::string frame = "ros";
   std::string truth;
+  std::string head_path;
   std::string method = MethodName(RegistrationOptions{}.method);
   RegistrationOptions options;
   double mls_radius = 0;
@@ -37,7 +38,20 @@ struct Inputs {
   JointValues joints;
   Iso3 T_world_seed;
   Iso3 T_world_base_true;
+  std::vector<Vec3> head_path_world;
 };
+
+// A JSON file's "head_path" in its "frame" (`arref simulate`'s truth file has both).
+Result<std::vector<Vec3>> ReadHeadPath(const std::string& file) {
+  auto j = ReadJsonFile(file);
+  if (!j.ok()) return j.status();
+  if (!j->contains("head_path")) return Status::InvalidArgument("no \"head_path\" in the file");
+  auto frame = ParseFrameConvention(j->value("frame", "ros"));
+  if (!frame.ok()) return frame.status();
+  auto path = PositionsFromJson((*j)["head_path"], *frame);
+  if (!path.ok()) return path.status().WithContext("head_path");
+  return path;
+}
 
 Result<Inputs> ReadInputs(const RegisterArgs& args, FrameConvention frame) {
   Inputs in;
@@ -71,6 +85,11 @@ Result<Inputs> ReadInputs(const RegisterArgs& args, FrameConvention frame) {
     in.T_world_seed = *seed;
   } else {
     return Status::InvalidArgument("no seed: pass --seed x,y,z,qx,qy,qz,qw or a --truth file with seeds");
+  }
+  if (!args.head_path.empty()) {
+    auto path = ReadHeadPath(args.head_path);
+    if (!path.ok()) return path.status().WithContext("--head-path " + args.head_path);
+    in.head_path_world = std::move(*path);
   }
   return in;
 }
@@ -154,6 +173,7 @@ int Run(const RegisterArgs& args) {
   if (!scene.ok()) return Fail(scene.status().WithContext("--scene"));
   MeshToRos(*scene, *frame);
 
+  options.head_path_world = inputs->head_path_world;
   auto report = RegisterScene(**model, *scene, inputs->T_world_seed, options, TerminalProgress());
   if (!report.ok()) return Fail(report.status());
   nlohmann::json j = ReportJson(*report, *frame);
@@ -188,6 +208,9 @@ void AddRegisterCommand(CLI::App& app, int* exit_code) {
   cmd->add_option("--frame", args->frame, "Convention of seed, mesh and output: ros or unity")
       ->check(CLI::IsMember({"ros", "unity"}))->capture_default_str();
   cmd->add_option("--truth", args->truth, "Ground truth JSON (from arref simulate): adds the true error");
+  cmd->add_option("--head-path", args->head_path,
+                  "JSON file whose \"head_path\" ([[x,y,z], ...] in its \"frame\") is where the headset was while "
+                  "mapping, e.g. arref simulate's truth file: arref-icp models the mesh from those eyes");
   cmd->add_option("--method", args->method, MethodHelp())->capture_default_str();
   RegistrationOptions& o = args->options;
   cmd->add_option("--crop-radius", o.crop_radius_m, "Crop the scene to this radius around the seed, m")->capture_default_str();

@@ -82,6 +82,8 @@ int Run(const SimulateArgs& args) {
   truth["joints"] = cell->joints;
   truth["seeds"] = nlohmann::json::array();
   for (const auto& seed : cell->seeds) truth["seeds"].push_back(PoseToJson(seed, *frame));
+  // Not truth: what the app logs while its wearer maps (`arref register --head-path`).
+  truth["head_path"] = PositionsToJson(cell->head_path_world, *frame);
   truth["voxel_m"] = cell->voxel_m;
   truth["surfaces"] = cell->surfaces.size();
   truth["triangles"] = mesh.triangles.size();

@@ -145,6 +145,7 @@ Result<HeadsetScene> SimulatedScene(std::uint64_t rng_seed) {
   scene.seeds = cell->seeds;
   scene.T_world_base_true = cell->T_world_base;
   scene.joints = cell->joints;
+  scene.head_path_world = cell->head_path_world;
   auto model = SampleRobot(*robot, cell->joints, 5000, 7);
   if (!model.ok()) return model.status();
   scene.model_points = std::move(model->points);
@@ -208,6 +209,9 @@ Status ReadTruth(const std::string& path, HeadsetScene* scene) {
       scene->seeds.push_back(*seed);
     }
     if (j.contains("joints")) scene->joints = j["joints"].get<JointValues>();
+    for (const auto& p : j.value("head_path", nlohmann::json::array()))
+      scene->head_path_world.push_back(
+          PositionToRos(Vec3(p.at(0).get<double>(), p.at(1).get<double>(), p.at(2).get<double>()), *frame));
   } catch (const nlohmann::json::exception& e) {
     return Status::IoError(path + ": " + e.what());
   }
@@ -382,6 +386,9 @@ class Runner {
     r->set_robot_id(o_.robot_id);
     r->set_method(o_.method);
     r->set_result_frame(pb::FRAME_CONVENTION_UNITY);
+    // As the app does: its wearer's path, logged while mapping, in Unity's frame.
+    if (o_.send_head_path && !scene_.head_path_world.empty())
+      *r->mutable_head_path() = wire::HeadPathToProto(scene_.head_path_world, FrameConvention::kUnity);
     if (!Send(m)) return false;
     const auto sent = Clock::now();
     if (o_.misbehaviour == Misbehaviour::kNeverReadReplies) return FloodWithoutReading();

@@ -52,6 +52,7 @@ struct HeadsetScene {
   std::optional<Iso3> T_world_base_true;
   JointValues joints;                    // robot joint state (sent as JointState when non-empty)
   std::vector<Vec3f> model_points;       // robot points in its base frame, for ADD
+  std::vector<Vec3> head_path_world;     // where the wearer walked while mapping (sent as head_path)
 };
 
 // A simulated cell of the built-in robot (small preset), as the mock headset maps it.
@@ -77,6 +78,7 @@ struct HeadsetOptions {
   int repeat = 1;                  // registrations on the same session
   std::uint64_t first_request_id = 1;
   std::string method;              // "" = server default
+  bool send_head_path = true;      // RegisterRequest.head_path, when the scene has one
   double timeout_s = 300.0;        // per reply; only to avoid hanging forever
   Misbehaviour misbehaviour = Misbehaviour::kNone;
   std::function<void(const pb::Progress&)> on_progress;

@@ -46,6 +46,8 @@ void AddFlags(CLI::App& app, Args& a) {
   app.add_option("--resend-fraction", o.resend_fraction, "Share of the first batch re-sent as updates");
   app.add_option("--quantize", o.quantize_scale, "Send int16 vertices with this step, m (0: floats)");
   app.add_option("--method", o.method, "Registration method (default: the server's)");
+  app.add_flag("!--no-head-path", o.send_head_path,
+               "Do not send where the wearer walked while mapping (RegisterRequest.head_path)");
   app.add_option("--repeat", o.repeat, "Registrations per headset")->capture_default_str();
   app.add_option("--clients", a.clients, "Concurrent headsets (latency figures)")->capture_default_str();
   app.add_option("--timeout", o.timeout_s, "Give up waiting for a reply after this many seconds");

@@ -223,7 +223,8 @@ std::vector<Surface> SplitIntoSurfaces(const TriangleMesh& world, double chunk_m
 // Ray casts every view from its true pose and fuses it at its believed pose, in the world
 // frame: the headset's voxel grid is aligned with its world, not with the cell.
 Result<TriangleMesh> ScanAndFuse(const CellScene& scene, const SimOptions& options, const Iso3& T_world_cell,
-                                 double voxel_m, std::uint64_t rng_seed, std::mt19937_64& rng) {
+                                 double voxel_m, std::uint64_t rng_seed, std::mt19937_64& rng,
+                                 std::vector<Vec3>* head_path_world) {
   const ScanOptions& scan = options.scan;
   auto caster = RayCaster::Create(scene.mesh);
   if (!caster.ok()) return caster.status();
@@ -242,6 +243,7 @@ Result<TriangleMesh> ScanAndFuse(const CellScene& scene, const SimOptions& optio
     RangeImage range = caster->Render(camera, views[i].T_cell_camera_true, scan.max_range_m, &incidence);
     AddRangeNoise(range, scan, rng_seed, i);
     ARREF_RETURN_IF_ERROR(volume.Integrate(camera, T_world_cell * views[i].T_cell_camera_believed, range, incidence));
+    head_path_world->push_back(T_world_cell * views[i].T_cell_camera_believed.translation());
   }
   spdlog::debug("sim: fused {} views into {} blocks of {}^3 voxels", views.size(), volume.block_count(),
                 TsdfVolume::kBlock);
@@ -280,7 +282,7 @@ Result<SimulatedCell> SimulateCell(const RobotModel& robot, const SimOptions& op
   cell.props = scene->props;
   cell.voxel_m = VoxelSize(options.fusion);
 
-  auto fused = ScanAndFuse(*scene, options, cell.T_world_cell, cell.voxel_m, rng_seed, rng);
+  auto fused = ScanAndFuse(*scene, options, cell.T_world_cell, cell.voxel_m, rng_seed, rng, &cell.head_path_world);
   if (!fused.ok()) return fused.status().WithContext("simulating the headset's scan");
   if (fused->empty())
     return Status::FailedPrecondition("simulated scan saw nothing within fusion.crop_radius_m = " +

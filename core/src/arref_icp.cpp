@@ -169,13 +169,38 @@ std::optional<TargetCloud> DenseTargetNear(const MethodInput& in, const PointClo
   return TargetCloud(SampleSurface(near, static_cast<std::size_t>(count), in.options.sample_seed));
 }
 
+// The refit's eyes when the app sent where its wearer walked: the path in the base frame, the
+// positions a headset maps the robot from (0.5-4 m from its base: HoloLens depth reaches ~4 m),
+// at most kRefitEyes of them spread evenly in time. Empty (the walk's eyes) with fewer than 3.
+std::vector<Vec3> EyesOfPath(const std::vector<Vec3>& path_world, const Iso3& T_world_base) {
+  constexpr std::size_t kRefitEyes = 24, kFewestEyes = 3;
+  const Iso3 T_base_world = T_world_base.inverse();
+  std::vector<Vec3> usable;
+  for (const Vec3& p : path_world) {
+    const Vec3 eye = T_base_world * p;
+    if (eye.head<2>().norm() >= 0.5 && eye.norm() <= 4.0) usable.push_back(eye);
+  }
+  if (usable.size() < kFewestEyes) return {};
+  const std::size_t n = usable.size(), kept = std::min(n, kRefitEyes);
+  std::vector<Vec3> eyes;
+  for (std::size_t i = 0; i < kept; ++i) eyes.push_back(usable[kept == n ? i : i * (n - 1) / (kept - 1)]);
+  return eyes;
+}
+
 // Objects near the robot (a table 0.2 m from its base) hide parts of it from the walker and
 // fuse with its shell; fitted without them, the robot is pulled towards them (measured: 3.7 mm
 // towards a table, noise-free). The chosen walk's surface is fused again with the mapped objects
 // round the fitted pose, and the pose polished with it.
 Candidate RefineInContext(const MethodInput& in, int walk, const TargetCloud& target, const Candidate& best,
                           std::shared_ptr<const PointCloud>* fitted, std::vector<std::string>* stages) {
-  auto surface = in.robot->ExpectedInContext(in.voxel_m, walk, *in.scene_mesh_world, best.T_world_base);
+  const std::vector<Vec3> eyes = EyesOfPath(in.options.head_path_world, best.T_world_base);
+  if (!eyes.empty()) {
+    stages->push_back("head-path");
+  } else if (!in.options.head_path_world.empty()) {
+    spdlog::warn("arref-icp: the head path has fewer than 3 positions 0.5-4 m from the robot; assuming walk {}", walk);
+    stages->push_back("head-path-unused");
+  }
+  auto surface = in.robot->ExpectedInContext(in.voxel_m, walk, *in.scene_mesh_world, best.T_world_base, eyes);
   if (!surface.ok()) {  // the fit without the objects stands
     spdlog::warn("arref-icp: no expected surface in context, keeping the fit without it: {}", surface.status().ToString());
     stages->push_back("in-context-skipped");

@@ -117,6 +117,8 @@ ExpectedSurfaceMaker::Rig ExpectedSurfaceMaker::Eyes(const ReconstructionOptions
   const int width = std::clamp(static_cast<int>(std::ceil(image_width_m / o.voxel_m * o.pixels_per_voxel)), 64, 2048);
   Rig rig{PinholeCamera::FromFov(width, width * 9 / 10, o.fov_horizontal_deg),
           o.distance_m + 2 * tsdf.crop_radius_m + o.eye_height_m, {}, tsdf};
+  for (const auto& eye : o.eyes_base) rig.T_base_cameras.push_back(LookAt(Vec3(eye[0], eye[1], eye[2]), tsdf.crop_center));
+  if (!o.eyes_base.empty()) return rig;
   // A full circle has no ends: its eyes are spread without doubling the first.
   const double step = o.arc_deg >= 360 ? 360.0 / o.azimuths : o.arc_deg / std::max(1, o.azimuths - 1);
   const double first = o.arc_deg >= 360 ? 0.0 : -o.arc_deg / 2;
@@ -142,12 +144,18 @@ ExpectedSurfaceMaker::View ExpectedSurfaceMaker::Render(const Rig& rig, std::siz
 // same eyes on every request, only the objects round it change.
 std::shared_ptr<const std::vector<ExpectedSurfaceMaker::View>> ExpectedSurfaceMaker::RobotViews(
     const ReconstructionOptions& o, const Rig& rig) const {
+  const auto render_all = [&] {
+    auto views = std::make_shared<std::vector<View>>();
+    for (std::size_t eye = 0; eye < rig.T_base_cameras.size(); ++eye) views->push_back(Render(rig, eye));
+    return views;
+  };
+  // A headset's own path differs from request to request: kept, its views would pile up.
+  if (!o.eyes_base.empty()) return render_all();
   {
     std::lock_guard lock(parts_->views->mutex);
     if (auto it = parts_->views->kept.find(o); it != parts_->views->kept.end()) return it->second;
   }
-  auto views = std::make_shared<std::vector<View>>();
-  for (std::size_t eye = 0; eye < rig.T_base_cameras.size(); ++eye) views->push_back(Render(rig, eye));
+  auto views = render_all();
   // Two requests may have rendered the same rig at once: the first one kept wins.
   std::lock_guard lock(parts_->views->mutex);
   return parts_->views->kept.emplace(o, views).first->second;

@@ -43,6 +43,7 @@ struct Config {
   int scene_cells = 2;  // per kind
   int scene_seeds = 3;  // per cell
   CellVariation variation;
+  bool head_path = false;  // each request sends where its cell's user walked (RegistrationOptions::head_path_world)
 };
 
 // A simulated cell with everything a run needs.

@@ -210,6 +210,7 @@ Status ScenesExperiment(const RobotModel& robot, const Config& config, Tables* t
     for (const auto& cell : *cells)
       for (int s = 0; s < static_cast<int>(cell.sim.seeds.size()); ++s) {
         jobs.push_back(SeedJob("scenes", method, size, "defaults", cell, s));
+        if (config.head_path) jobs.back().options.head_path_world = cell.sim.head_path_world;
       }
   spdlog::info("bench: methods on each kind of scene: {} runs", jobs.size());
   const std::vector<Run> runs = Execute(jobs, config.jobs);

@@ -9,6 +9,7 @@
 // Built once per robot, joint state and voxel size.
 #pragma once
 
+#include <array>
 #include <compare>
 #include <cstdint>
 #include <memory>
@@ -38,6 +39,9 @@ struct ReconstructionOptions {
   // robot's distance (finer costs time and changes nothing: the TSDF averages within a voxel).
   double pixels_per_voxel = 2.0;
   double fov_horizontal_deg = 75.0;
+  // The eyes where the headset really was (base frame), when known: they replace the arc
+  // (azimuths, arc_deg, arc_center_deg, distance_m, eye_height_m). Each looks at the robot.
+  std::vector<std::array<double, 3>> eyes_base;
   auto operator<=>(const ReconstructionOptions&) const = default;  // field by field (caches key on it)
 };
 

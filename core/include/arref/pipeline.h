@@ -82,8 +82,9 @@ class RobotSide {
   std::shared_ptr<const PointCloud> Visible(std::size_t thinned_to) const;
   // The same with the objects mapped round the robot, from the headset's mesh with the robot
   // at T_world_base (ExpectedSurfaceMaker::MakeInContext). Made anew on every call.
+  // eyes_base: where the headset really was (base frame); empty: the walk's eyes.
   Result<PointCloud> ExpectedInContext(double voxel_m, int walk, const TriangleMesh& scene_world,
-                                       const Iso3& T_world_base) const;
+                                       const Iso3& T_world_base, const std::vector<Vec3>& eyes_base = {}) const;
 
  private:
   RobotSide(TriangleMesh mesh_base, PointCloud samples, std::uint64_t seed);

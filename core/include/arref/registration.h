@@ -136,6 +136,10 @@ struct RegistrationOptions {
   ConfidenceThresholds confidence;
   double inlier_threshold_m = 0.02;
   std::uint64_t sample_seed = 1;      // sampling is deterministic for a seed
+  // Where the headset was while it mapped the robot (world frame, e.g. one position per
+  // second of the mapping), when the app sends it: arref-icp then models the mesh from those
+  // eyes instead of guessing which side of the robot was walked. Empty: unknown.
+  std::vector<Vec3> head_path_world;
 };
 
 struct RegistrationOutput {

@@ -99,6 +99,9 @@ struct SimulatedCell {
   double voxel_m = 0.0;               // voxel edge used for fusion
   Iso3 T_world_cell = Iso3::Identity();  // the cell layout frame (floor under the base) in world
   std::vector<Prop> props;            // what was placed where, in the cell frame
+  // Where head tracking put the headset at each view (the poses the mesh was fused at), in
+  // world: what an app can log while its wearer maps the robot.
+  std::vector<Vec3> head_path_world;
 };
 
 Result<SimulatedCell> SimulateCell(const RobotModel& robot, const SimOptions& options,

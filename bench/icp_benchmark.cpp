@@ -33,6 +33,7 @@ struct Fixture {
   std::shared_ptr<const RobotModel> model_robot;
   JointValues joints;
   std::shared_ptr<const RobotSide> robot;
+  std::vector<Vec3> head_path_world;  // where the simulated user walked
 };
 
 const Fixture& Cell() {
@@ -53,6 +54,7 @@ const Fixture& Cell() {
     out.T_world_seed = cell->seeds.front();
     out.model_robot = robot;
     out.joints = cell->joints;
+    out.head_path_world = cell->head_path_world;
     out.robot = *RobotSide::Create(*robot, cell->joints, 10000, 1);
     return out;
   }();
@@ -110,7 +112,8 @@ void BM_PclIteration(benchmark::State& state) {
 // One request end to end as the server runs it (crop, sample, register, evaluate), with the
 // robot side's cached surfaces already made. Args: the refit in context (1) or not (0), and
 // its last polish as by default (1) or as before either had a setting of its own (0: 2,000
-// points against the request's scene samples).
+// points against the request's scene samples); optional third: the request sends the user's
+// head path (1) or not (0, the default).
 void BM_Request(benchmark::State& state) {
   RegistrationOptions options;
   options.arref_icp.in_context = state.range(0) != 0;
@@ -119,6 +122,7 @@ void BM_Request(benchmark::State& state) {
     options.arref_icp.context_target_density = 0.0;
   }
   const Fixture& f = Cell();
+  if (state.range(2) != 0) options.head_path_world = f.head_path_world;
   auto warm = RegisterScene(*f.robot, f.scene_mesh, f.T_world_seed, options);
   if (!warm.ok()) return state.SkipWithError(warm.status().ToString().c_str());
   for (auto _ : state) benchmark::DoNotOptimize(RegisterScene(*f.robot, f.scene_mesh, f.T_world_seed, options));
@@ -162,7 +166,7 @@ void BM_NewJointStateOneByOne(benchmark::State& state) {
 
 // Wall time, and the CPU time of every thread: their ratio is how many of the cores the step keeps
 // busy (a ratio near the core count leaves nothing for more parallelism to gain).
-BENCHMARK(BM_Request)->Args({1, 1})->Args({1, 0})->Args({0, 1})->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_Request)->Args({1, 1, 0})->Args({1, 0, 0})->Args({0, 1, 0})->Args({1, 1, 1})->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_NewJointState)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_NewJointStateOneByOne)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ExpectedInContext)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);

@@ -69,7 +69,8 @@ struct ExpectedSurfaceMaker::ViewCache {
 };
 
 struct ExpectedSurfaceMaker::Parts {
-  RayCaster caster;  // the robot on its floor
+  TriangleMesh robot_on_floor;
+  RayCaster caster;  // of robot_on_floor
   PointIndex robot;  // dense samples of the exact surface: which fused triangles are robot
   Aabb box;
   std::uint64_t seed;
@@ -83,10 +84,11 @@ ExpectedSurfaceMaker::~ExpectedSurfaceMaker() = default;
 
 Result<ExpectedSurfaceMaker> ExpectedSurfaceMaker::Create(const TriangleMesh& robot_base, std::uint64_t seed) {
   if (robot_base.empty()) return Status::InvalidArgument("expected surface: the robot has no geometry");
-  auto caster = RayCaster::Create(WithFloor(robot_base));
+  TriangleMesh robot_on_floor = WithFloor(robot_base);
+  auto caster = RayCaster::Create(robot_on_floor);
   if (!caster.ok()) return caster.status().WithContext("expected surface");
   return ExpectedSurfaceMaker(std::make_unique<Parts>(
-      Parts{std::move(*caster), PointIndex(SampleSurface(robot_base, 20000, seed).points), BoundsOf(robot_base.vertices),
+      Parts{std::move(robot_on_floor), std::move(*caster), PointIndex(SampleSurface(robot_base, 20000, seed).points), BoundsOf(robot_base.vertices),
             seed}));
 }
 
@@ -144,18 +146,12 @@ ExpectedSurfaceMaker::View ExpectedSurfaceMaker::Render(const Rig& rig, std::siz
 // same eyes on every request, only the objects round it change.
 std::shared_ptr<const std::vector<ExpectedSurfaceMaker::View>> ExpectedSurfaceMaker::RobotViews(
     const ReconstructionOptions& o, const Rig& rig) const {
-  const auto render_all = [&] {
-    auto views = std::make_shared<std::vector<View>>();
-    for (std::size_t eye = 0; eye < rig.T_base_cameras.size(); ++eye) views->push_back(Render(rig, eye));
-    return views;
-  };
-  // A headset's own path differs from request to request: kept, its views would pile up.
-  if (!o.eyes_base.empty()) return render_all();
   {
     std::lock_guard lock(parts_->views->mutex);
     if (auto it = parts_->views->kept.find(o); it != parts_->views->kept.end()) return it->second;
   }
-  auto views = render_all();
+  auto views = std::make_shared<std::vector<View>>();
+  for (std::size_t eye = 0; eye < rig.T_base_cameras.size(); ++eye) views->push_back(Render(rig, eye));
   // Two requests may have rendered the same rig at once: the first one kept wins.
   std::lock_guard lock(parts_->views->mutex);
   return parts_->views->kept.emplace(o, views).first->second;
@@ -171,10 +167,15 @@ Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const Rig& rig, const std::vecto
       ARREF_RETURN_IF_ERROR(volume.Integrate(rig.camera, T_base_camera, view.range, view.incidence, view.band));
       continue;
     }
-    View view = *robot_views[a];
-    std::vector<float> context_incidence;
-    NearerOf(context->Render(rig.camera, T_base_camera, rig.max_range, &context_incidence, &view.range),
-             context_incidence, &view.range, &view.incidence);
+    View view;
+    if (robot_views.empty()) {  // the caster holds robot and objects
+      view.range = context->Render(rig.camera, T_base_camera, rig.max_range, &view.incidence);
+    } else {
+      view = *robot_views[a];
+      std::vector<float> context_incidence;
+      NearerOf(context->Render(rig.camera, T_base_camera, rig.max_range, &context_incidence, &view.range),
+               context_incidence, &view.range, &view.incidence);
+    }
     ARREF_RETURN_IF_ERROR(volume.Integrate(rig.camera, T_base_camera, view.range, view.incidence));
   }
   return volume.ExtractMesh();
@@ -203,8 +204,13 @@ Result<PointCloud> ExpectedSurfaceMaker::MakeInContext(const ReconstructionOptio
                                                        double clearance_m) const {
   const TriangleMesh context_base = Context(scene_world, T_world_base, clearance_m);
   if (context_base.empty()) return Make(options, samples);
-  // The robot's caster is kept; the objects get their own, and each pixel sees the nearer.
-  auto caster = RayCaster::Create(context_base, RayCaster::Build::kForOneUse);
+  // The robot's caster and images from the walks' eyes are kept; the objects get their own
+  // caster, and each pixel sees the nearer. Eyes of the headset's own path have no kept
+  // images, so robot and objects are traced as one scene: once per pixel, not twice.
+  TriangleMesh traced;
+  if (!options.eyes_base.empty()) traced = parts_->robot_on_floor;
+  traced.Append(context_base);
+  auto caster = RayCaster::Create(traced, RayCaster::Build::kForOneUse);
   if (!caster.ok()) return caster.status().WithContext("expected surface in context");
   std::vector<Vec3f> near = FusedPart(context_base, options);
   if (near.empty()) return Sample(options, *caster, nullptr, samples);  // objects that only hide the robot
@@ -242,9 +248,11 @@ Result<PointCloud> ExpectedSurfaceMaker::Sample(const ReconstructionOptions& opt
                                                 const PointIndex* context, std::size_t samples) const {
   ARREF_RETURN_IF_ERROR(CheckOptions(options));
   const Rig rig = Eyes(options);
-  const auto views = RobotViews(options, rig);
-  std::vector<const View*> view_of_eye;
-  for (const View& view : *views) view_of_eye.push_back(&view);
+  std::vector<const View*> view_of_eye;  // none: context_caster holds the robot too (MakeInContext)
+  std::shared_ptr<const std::vector<View>> views;
+  if (options.eyes_base.empty()) views = RobotViews(options, rig);
+  if (views)
+    for (const View& view : *views) view_of_eye.push_back(&view);
   return SampleFused(options, Fuse(rig, view_of_eye, &context_caster), context, samples);
 }
 

@@ -174,11 +174,12 @@ std::optional<TargetCloud> DenseTargetNear(const MethodInput& in, const PointClo
 // at most kRefitEyes of them spread evenly in time. Empty (the walk's eyes) with fewer than 3.
 std::vector<Vec3> EyesOfPath(const std::vector<Vec3>& path_world, const Iso3& T_world_base) {
   constexpr std::size_t kRefitEyes = 24, kFewestEyes = 3;
+  constexpr double kNearestM = 0.5, kFarthestM = 4.0;
   const Iso3 T_base_world = T_world_base.inverse();
   std::vector<Vec3> usable;
   for (const Vec3& p : path_world) {
     const Vec3 eye = T_base_world * p;
-    if (eye.head<2>().norm() >= 0.5 && eye.norm() <= 4.0) usable.push_back(eye);
+    if (eye.head<2>().norm() >= kNearestM && eye.norm() <= kFarthestM) usable.push_back(eye);
   }
   if (usable.size() < kFewestEyes) return {};
   const std::size_t n = usable.size(), kept = std::min(n, kRefitEyes);

@@ -208,7 +208,7 @@ Result<PointCloud> ExpectedSurfaceMaker::MakeInContext(const ReconstructionOptio
   // caster, and each pixel sees the nearer. Eyes of the headset's own path have no kept
   // images, so robot and objects are traced as one scene: once per pixel, not twice.
   TriangleMesh traced;
-  if (!options.eyes_base.empty()) traced = parts_->robot_on_floor;
+  if (!KeepsRobotImages(options)) traced = parts_->robot_on_floor;
   traced.Append(context_base);
   auto caster = RayCaster::Create(traced, RayCaster::Build::kForOneUse);
   if (!caster.ok()) return caster.status().WithContext("expected surface in context");
@@ -217,6 +217,10 @@ Result<PointCloud> ExpectedSurfaceMaker::MakeInContext(const ReconstructionOptio
   const PointIndex context(std::move(near));
   return Sample(options, *caster, &context, samples);
 }
+
+// Eyes on an arc are the same on every request, so the robot's images from them are kept
+// (RobotViews); eyes of a headset's own path are not.
+bool ExpectedSurfaceMaker::KeepsRobotImages(const ReconstructionOptions& options) { return options.eyes_base.empty(); }
 
 // Points on the objects in the fused band round the robot, where they can border its shell: two
 // per voxel face, so big triangles are covered as well as a headset's small ones.
@@ -248,11 +252,12 @@ Result<PointCloud> ExpectedSurfaceMaker::Sample(const ReconstructionOptions& opt
                                                 const PointIndex* context, std::size_t samples) const {
   ARREF_RETURN_IF_ERROR(CheckOptions(options));
   const Rig rig = Eyes(options);
-  std::vector<const View*> view_of_eye;  // none: context_caster holds the robot too (MakeInContext)
+  std::vector<const View*> view_of_eye;  // none: context_caster holds the robot too
   std::shared_ptr<const std::vector<View>> views;
-  if (options.eyes_base.empty()) views = RobotViews(options, rig);
-  if (views)
+  if (KeepsRobotImages(options)) {
+    views = RobotViews(options, rig);
     for (const View& view : *views) view_of_eye.push_back(&view);
+  }
   return SampleFused(options, Fuse(rig, view_of_eye, &context_caster), context, samples);
 }
 

@@ -41,6 +41,7 @@ struct ReconstructionOptions {
   double fov_horizontal_deg = 75.0;
   // The eyes where the headset really was (base frame), when known: they replace the arc
   // (azimuths, arc_deg, arc_center_deg, distance_m, eye_height_m). Each looks at the robot.
+  // Arrays, not Vec3: caches order options field by field, and Eigen vectors have no order.
   std::vector<std::array<double, 3>> eyes_base;
   auto operator<=>(const ReconstructionOptions&) const = default;  // field by field (caches key on it)
 };
@@ -83,7 +84,9 @@ class ExpectedSurfaceMaker {
   TriangleMesh Context(const TriangleMesh& scene_world, const Iso3& T_world_base, double clearance_m) const;
   std::vector<Vec3f> FusedPart(const TriangleMesh& context_base, const ReconstructionOptions& options) const;
   TriangleMesh RobotPart(const TriangleMesh& fused, const PointIndex* context) const;
-  // The robot fused with the objects' images (context_caster) and split from them (context).
+  static bool KeepsRobotImages(const ReconstructionOptions& options);
+  // The robot fused with the objects' images (context_caster, which holds the robot too where
+  // its images are not kept) and split from them (context).
   Result<PointCloud> Sample(const ReconstructionOptions& options, const RayCaster& context_caster,
                             const PointIndex* context, std::size_t samples) const;
   Result<PointCloud> SampleFused(const ReconstructionOptions& options, Result<TriangleMesh> fused,

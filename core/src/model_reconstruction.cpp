@@ -207,10 +207,12 @@ Result<PointCloud> ExpectedSurfaceMaker::MakeInContext(const ReconstructionOptio
   // The robot's caster and images from the walks' eyes are kept; the objects get their own
   // caster, and each pixel sees the nearer. Eyes of the headset's own path have no kept
   // images, so robot and objects are traced as one scene: once per pixel, not twice.
-  TriangleMesh traced;
-  if (!KeepsRobotImages(options)) traced = parts_->robot_on_floor;
-  traced.Append(context_base);
-  auto caster = RayCaster::Create(traced, RayCaster::Build::kForOneUse);
+  TriangleMesh with_robot;
+  if (!KeepsRobotImages(options)) {
+    with_robot = parts_->robot_on_floor;
+    with_robot.Append(context_base);
+  }
+  auto caster = RayCaster::Create(KeepsRobotImages(options) ? context_base : with_robot, RayCaster::Build::kForOneUse);
   if (!caster.ok()) return caster.status().WithContext("expected surface in context");
   std::vector<Vec3f> near = FusedPart(context_base, options);
   if (near.empty()) return Sample(options, *caster, nullptr, samples);  // objects that only hide the robot

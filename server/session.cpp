@@ -49,6 +49,7 @@ void FillReport(const RegistrationReport& report, FrameConvention frame, pb::Res
   r->set_score(report.score);
   r->set_margin(report.margin);
   r->set_hypotheses(report.hypotheses);
+  for (const auto& stage : report.stages_run) r->add_stages(stage);
   *r->mutable_t_world_base() = wire::PoseToProto(report.T_world_base, frame);
   r->set_frame(wire::ToProto(frame));
   wire::MatrixToProto(report.T_world_base, r->mutable_t_world_base_internal());

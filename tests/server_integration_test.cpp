@@ -10,6 +10,7 @@
 #include <gtest/gtest.h>
 
 #include <chrono>
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <filesystem>
@@ -299,6 +300,9 @@ TEST(ServerIntegration, RecoversTruePoseFromUserLikeSeeds) {
       EXPECT_LT((M->matrix() - r.T_world_base.matrix()).cwiseAbs().maxCoeff(), 1e-6);
       ok += Succeeded(r);
       ++total;
+      // The mock headset sends its wearer's path, as the app does; the result says it was used.
+      const auto& stages = r.result.stages();
+      EXPECT_NE(std::find(stages.begin(), stages.end(), "head-path"), stages.end());
       latencies.push_back(r.latency_ms);
       std::printf("cell %d seed %d: ADD %.1f mm, translation %.1f mm, rotation %.2f deg, %.0f ms\n",
                   static_cast<int>(cell), seed, r.error->add_m * 1e3, r.error->translation_m * 1e3,
@@ -511,7 +515,11 @@ TEST(ServerIntegration, ClearErrorsForBadRequests) {
   EXPECT_EQ(e.error().code(), pb::ERROR_CODE_INVALID_ARGUMENT);
   EXPECT_NE(e.error().message().find("head_path.positions[1] is not finite"), std::string::npos) << e.error().message();
   h.Request(5);  // the session survived all of it
-  EXPECT_EQ(h.AwaitResult(5).result().status(), pb::RESULT_STATUS_OK);
+  const auto result = h.AwaitResult(5).result();
+  EXPECT_EQ(result.status(), pb::RESULT_STATUS_OK);
+  const auto& stages = result.stages();
+  EXPECT_NE(std::find(stages.begin(), stages.end(), "in-context"), stages.end());
+  EXPECT_EQ(std::find(stages.begin(), stages.end(), "head-path"), stages.end()) << "no path was sent";
 }
 
 TEST(ServerIntegration, VersionMismatchNamesBothVersions) {

@@ -114,7 +114,8 @@ nlohmann::json RunJson(const HeadsetRun& run) {
                      {"latency_ms", r.latency_ms}, {"rms_m", r.result.rms_m()},
                      {"inlier_fraction", r.result.inlier_fraction()}, {"iterations", r.result.iterations()},
                      {"server_ms", r.result.server_ms()}, {"queue_ms", r.result.queue_ms()},
-                     {"message", r.result.message()}};
+                     {"message", r.result.message()},
+                     {"stages", std::vector<std::string>(r.result.stages().begin(), r.result.stages().end())}};
     const auto& p = r.result.t_world_base();
     x["T_world_base_unity"] = {p.position().x(), p.position().y(), p.position().z(), p.orientation().x(),
                                p.orientation().y(), p.orientation().z(), p.orientation().w()};
@@ -148,6 +149,8 @@ void PrintHuman(const HeadsetRun& run) {
     std::cout << fmt::format("  {}: rms {:.1f} mm ({} model points), inliers {:.1f} %, {} iterations\n",
                              r.result.method(), r.result.rms_m() * 1e3, r.result.rms_points(),
                              r.result.inlier_fraction() * 100, r.result.iterations());
+    if (!r.result.stages().empty())
+      std::cout << "  steps: " << fmt::format("{}", fmt::join(r.result.stages(), ", ")) << "\n";
     if (r.error)
       std::cout << fmt::format("  vs truth: ADD {:.1f} mm, translation {:.1f} mm, rotation {:.2f} deg\n",
                                r.error->add_m * 1e3, r.error->translation_m * 1e3, r.error->rotation_deg);

@@ -169,19 +169,22 @@ std::optional<TargetCloud> DenseTargetNear(const MethodInput& in, const PointClo
   return TargetCloud(SampleSurface(near, static_cast<std::size_t>(count), in.options.sample_seed));
 }
 
+// Which head positions the refit takes as eyes: those a headset maps the robot from (HoloLens
+// depth reaches ~4 m), and enough of them to be a path.
+constexpr double kNearestEyeM = 0.5, kFarthestEyeM = 4.0;
+constexpr std::size_t kFewestPathEyes = 3, kRefitEyes = 24;
+
 // The refit's eyes when the app sent where its wearer walked: the path in the base frame, the
-// positions a headset maps the robot from (0.5-4 m from its base: HoloLens depth reaches ~4 m),
-// at most kRefitEyes of them spread evenly in time. Empty (the walk's eyes) with fewer than 3.
+// positions kNearestEyeM-kFarthestEyeM from its base, at most kRefitEyes of them spread evenly
+// in time. Empty (the walk's eyes) with fewer than kFewestPathEyes.
 std::vector<Vec3> EyesOfPath(const std::vector<Vec3>& path_world, const Iso3& T_world_base) {
-  constexpr std::size_t kRefitEyes = 24, kFewestEyes = 3;
-  constexpr double kNearestM = 0.5, kFarthestM = 4.0;
   const Iso3 T_base_world = T_world_base.inverse();
   std::vector<Vec3> usable;
   for (const Vec3& p : path_world) {
     const Vec3 eye = T_base_world * p;
-    if (eye.head<2>().norm() >= kNearestM && eye.norm() <= kFarthestM) usable.push_back(eye);
+    if (eye.head<2>().norm() >= kNearestEyeM && eye.norm() <= kFarthestEyeM) usable.push_back(eye);
   }
-  if (usable.size() < kFewestEyes) return {};
+  if (usable.size() < kFewestPathEyes) return {};
   const std::size_t n = usable.size(), kept = std::min(n, kRefitEyes);
   std::vector<Vec3> eyes;
   for (std::size_t i = 0; i < kept; ++i) eyes.push_back(usable[kept == n ? i : i * (n - 1) / (kept - 1)]);
@@ -198,7 +201,8 @@ Candidate RefineInContext(const MethodInput& in, int walk, const TargetCloud& ta
   if (!eyes.empty()) {
     stages->push_back("head-path");
   } else if (!in.options.head_path_world.empty()) {
-    spdlog::warn("arref-icp: the head path has fewer than 3 positions 0.5-4 m from the robot; assuming walk {}", walk);
+    spdlog::warn("arref-icp: the head path has fewer than {} positions {}-{} m from the robot; assuming walk {}",
+                 kFewestPathEyes, kNearestEyeM, kFarthestEyeM, walk);
     stages->push_back("head-path-unused");
   }
   auto surface = in.robot->ExpectedInContext(in.voxel_m, walk, *in.scene_mesh_world, best.T_world_base, eyes);

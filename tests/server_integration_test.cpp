@@ -25,6 +25,7 @@
 #include <vector>
 
 #include "headset_client.h"
+#include "test_support.h"
 
 extern char** environ;
 
@@ -534,6 +535,33 @@ TEST(ServerIntegration, VersionMismatchNamesBothVersions) {
   auto closed = h.Receive(30);
   EXPECT_EQ(closed.status().code(), StatusCode::kUnavailable);
   ExpectAnotherHeadsetSucceeds(server);
+}
+
+// The mock headset reads `arref simulate`'s cell files with the command line's reader: each
+// malformed part is named, and it stops before it connects (no server runs here).
+TEST(MockHeadset, BadCellFilesGetClearErrors) {
+  const std::string dir = ::testing::TempDir() + "/arref_mock_cells";
+  std::filesystem::create_directories(dir);
+  std::ofstream(dir + "/tri.obj") << "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
+  const std::string T = R"("T_world_base": [1,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1])";
+  struct Case {
+    std::string json;
+    std::string expected_output;
+  };
+  const std::vector<Case> cases{
+      {"{not json", "is not valid JSON"},
+      {R"({"T_world_base": [1, 0, 0]})", "T_world_base: a 4x4 matrix must be 16 numbers"},
+      {"{" + T + R"(, "seeds": [[0,0,0, 0,0,0,2]]})", "seeds[0]: pose quaternion is not unit length"},
+      {"{" + T + R"(, "seeds": [[0,0,0, 0,0,0,1]], "joints": {"joint_a1": "up"}})", "joint 'joint_a1' is not a finite"},
+      {"{" + T + R"(, "seeds": [[0,0,0, 0,0,0,1]], "head_path": [[0, 0]]})", "head_path: position 0 is not [x,y,z]"},
+  };
+  for (std::size_t i = 0; i < cases.size(); ++i) {
+    const std::string truth = dir + "/cell" + std::to_string(i) + ".json";
+    std::ofstream(truth) << cases[i].json;
+    const auto r = arref::testing::RunCommand(kMockPath + " --port 1 --scene " + dir + "/tri.obj --truth " + truth);
+    EXPECT_EQ(r.exit_code, 3) << cases[i].json << "\n" << r.out << r.err;
+    EXPECT_NE((r.out + r.err).find(cases[i].expected_output), std::string::npos) << cases[i].json << "\n" << r.out << r.err;
+  }
 }
 
 // Each misbehaviour flag of the mock headset executable gets a clear error (or a logged

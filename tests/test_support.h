@@ -51,10 +51,13 @@ inline CommandResult RunCommand(const std::string& command) {
   for (std::size_t n; (n = fread(buffer.data(), 1, buffer.size(), pipe)) > 0;) result.out.append(buffer.data(), n);
   const int status = pclose(pipe);
   result.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
-  std::ifstream err(err_path);
-  std::stringstream ss;
-  ss << err.rdbuf();
-  result.err = ss.str();
+  {
+    std::ifstream err(err_path);
+    std::stringstream ss;
+    ss << err.rdbuf();
+    result.err = ss.str();
+  }
+  std::remove(err_path.c_str());  // one per test process: left behind, they pile up in the temp dir
   return result;
 }
 

@@ -1,8 +1,7 @@
-// Pieces shared by the `arref` subcommands: exit codes, robot options, pose and JSON helpers.
+// Pieces shared by the `arref` subcommands: exit codes, robot options, pose parsing.
 #pragma once
 
 #include <CLI/CLI.hpp>
-#include <nlohmann/json_fwd.hpp>
 
 #include <string>
 #include <vector>
@@ -11,6 +10,7 @@
 #include "arref/geometry.h"
 #include "arref/robot_model.h"
 #include "arref/status.h"
+#include "json_io.h"  // the JSON forms the subcommands read and write
 
 namespace arref::cli {
 
@@ -39,20 +39,6 @@ Result<JointValues> ParseJoints(const std::string& text);
 
 // "x,y,z,qx,qy,qz,qw" in the given convention, to an internal pose.
 Result<Iso3> ParsePose(const std::string& text, FrameConvention frame);
-
-// Row-major 4x4 as 16 numbers, and back.
-nlohmann::json MatrixToJson(const Iso3& T);
-Result<Iso3> MatrixFromJson(const nlohmann::json& j);
-// [x,y,z,qx,qy,qz,qw] of an internal pose, in the given convention.
-nlohmann::json PoseToJson(const Iso3& T, FrameConvention frame);
-Result<Iso3> PoseFromJson(const nlohmann::json& j, FrameConvention frame);
-
-// [[x,y,z], ...] of internal positions (a head path), in the given convention, and back.
-nlohmann::json PositionsToJson(const std::vector<Vec3>& positions, FrameConvention frame);
-Result<std::vector<Vec3>> PositionsFromJson(const nlohmann::json& j, FrameConvention frame);
-
-Result<nlohmann::json> ReadJsonFile(const std::string& path);
-Status WriteJsonFile(const nlohmann::json& j, const std::string& path);
 
 // True when stderr is a terminal: progress lines are for people, not logs.
 bool StderrIsTerminal();

@@ -66,8 +66,11 @@ Result<Inputs> ReadInputs(const RegisterArgs& args, FrameConvention frame) {
   auto joints = ParseJoints(args.robot.joints);
   if (!joints.ok()) return joints.status();
   in.joints = *joints;
-  if (args.robot.joints.empty() && in.truth && in.truth->contains("joints"))  // the scene's own robot pose
-    in.joints = (*in.truth)["joints"].get<JointValues>();
+  if (args.robot.joints.empty() && in.truth && in.truth->contains("joints")) {  // the scene's own robot pose
+    auto truth_joints = JointsFromJson((*in.truth)["joints"]);
+    if (!truth_joints.ok()) return truth_joints.status().WithContext("--truth " + args.truth);
+    in.joints = *truth_joints;
+  }
 
   if (!args.seed.empty()) {
     auto seed = ParsePose(args.seed, frame);

@@ -15,7 +15,6 @@
 #include <chrono>
 #include <cmath>
 #include <cstring>
-#include <fstream>
 #include <map>
 #include <nlohmann/json.hpp>
 #include <thread>
@@ -23,6 +22,7 @@
 #include "arref/builtin.h"
 #include "arref/pipeline.h"
 #include "arref/sim/cell_simulator.h"
+#include "json_io.h"
 
 namespace arref::headset {
 namespace {
@@ -186,34 +186,31 @@ std::vector<Surface> SplitIntoSurfaces(const TriangleMesh& world, double chunk_m
   return out;
 }
 
-Result<Iso3> PoseFromArray(const nlohmann::json& j, FrameConvention frame) {
-  if (!j.is_array() || j.size() != 7) return Status::InvalidArgument("a pose must be [x,y,z,qx,qy,qz,qw]");
-  return PoseToRos(Vec3(j[0], j[1], j[2]), Quat(j[6].get<double>(), j[3], j[4], j[5]).normalized(), frame);
-}
-
+// The cell file `arref simulate` writes: the truth, the seeds and where the wearer walked.
 Status ReadTruth(const std::string& path, HeadsetScene* scene) {
-  std::ifstream in(path);
-  if (!in) return Status::NotFound("truth file " + path + " cannot be opened");
-  try {
-    const nlohmann::json j = nlohmann::json::parse(in);
-    const auto& m = j.at("T_world_base");
-    if (!m.is_array() || m.size() != 16) return Status::InvalidArgument(path + ": T_world_base must be 16 numbers");
-    Iso3 T;
-    for (int i = 0; i < 16; ++i) T.matrix()(i / 4, i % 4) = m[i].get<double>();
-    scene->T_world_base_true = T;
-    auto frame = ParseFrameConvention(j.value("frame", "ros"));
-    if (!frame.ok()) return frame.status().WithContext(path);
-    for (const auto& s : j.value("seeds", nlohmann::json::array())) {
-      auto seed = PoseFromArray(s, *frame);
-      if (!seed.ok()) return seed.status().WithContext(path + " seeds");
-      scene->seeds.push_back(*seed);
-    }
-    if (j.contains("joints")) scene->joints = j["joints"].get<JointValues>();
-    for (const auto& p : j.value("head_path", nlohmann::json::array()))
-      scene->head_path_world.push_back(
-          PositionToRos(Vec3(p.at(0).get<double>(), p.at(1).get<double>(), p.at(2).get<double>()), *frame));
-  } catch (const nlohmann::json::exception& e) {
-    return Status::IoError(path + ": " + e.what());
+  auto j = ReadJsonFile(path);
+  if (!j.ok()) return j.status();
+  auto T = MatrixFromJson(j->value("T_world_base", nlohmann::json()));
+  if (!T.ok()) return T.status().WithContext(path + ": T_world_base");
+  scene->T_world_base_true = *T;
+  auto frame = ParseFrameConvention(j->value("frame", "ros"));
+  if (!frame.ok()) return frame.status().WithContext(path);
+  const nlohmann::json seeds = j->value("seeds", nlohmann::json::array());
+  if (!seeds.is_array()) return Status::InvalidArgument(path + ": seeds must be an array of poses");
+  for (std::size_t i = 0; i < seeds.size(); ++i) {
+    auto seed = PoseFromJson(seeds[i], *frame);
+    if (!seed.ok()) return seed.status().WithContext(path + ": seeds[" + std::to_string(i) + "]");
+    scene->seeds.push_back(*seed);
+  }
+  if (j->contains("joints")) {
+    auto joints = JointsFromJson((*j)["joints"]);
+    if (!joints.ok()) return joints.status().WithContext(path);
+    scene->joints = *joints;
+  }
+  if (j->contains("head_path")) {
+    auto path_world = PositionsFromJson((*j)["head_path"], *frame);
+    if (!path_world.ok()) return path_world.status().WithContext(path + ": head_path");
+    scene->head_path_world = std::move(*path_world);
   }
   return Status::Ok();
 }

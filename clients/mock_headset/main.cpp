@@ -9,6 +9,7 @@
 #include <sstream>
 
 #include "headset_client.h"
+#include "json_io.h"
 
 namespace {
 
@@ -81,7 +82,9 @@ Result<Iso3> ParseSeed(const std::string& text, FrameConvention frame) {
     }
   }
   if (v.size() != 7) return Status::InvalidArgument("--seed needs x,y,z,qx,qy,qz,qw");
-  return PoseToRos(Vec3(v[0], v[1], v[2]), Quat(v[6], v[3], v[4], v[5]).normalized(), frame);
+  auto seed = PoseFromNumbers(v, frame);
+  if (!seed.ok()) return seed.status().WithContext("--seed");
+  return seed;
 }
 
 Result<HeadsetScene> BuildScene(const Args& a) {

@@ -1,0 +1,36 @@
+// JSON forms of poses, positions, matrices and joint states, shared by the `arref` command line
+// and the mock headset: both read the cell files `arref simulate` writes, so one reader checks them.
+#pragma once
+
+#include <nlohmann/json_fwd.hpp>
+
+#include <string>
+#include <vector>
+
+#include "arref/frames.h"
+#include "arref/geometry.h"
+#include "arref/robot_model.h"
+#include "arref/status.h"
+
+namespace arref {
+
+// x, y, z, qx, qy, qz, qw in the given convention, to an internal pose; the quaternion must be
+// unit length (to 1e-3), so a typo is an error rather than a silently normalised rotation.
+Result<Iso3> PoseFromNumbers(const std::vector<double>& numbers, FrameConvention frame);
+
+// Row-major 4x4 as 16 numbers, and back.
+nlohmann::json MatrixToJson(const Iso3& T);
+Result<Iso3> MatrixFromJson(const nlohmann::json& j);
+// [x,y,z,qx,qy,qz,qw] of an internal pose, in the given convention, and back.
+nlohmann::json PoseToJson(const Iso3& T, FrameConvention frame);
+Result<Iso3> PoseFromJson(const nlohmann::json& j, FrameConvention frame);
+// [[x,y,z], ...] of internal positions (a head path), in the given convention, and back.
+nlohmann::json PositionsToJson(const std::vector<Vec3>& positions, FrameConvention frame);
+Result<std::vector<Vec3>> PositionsFromJson(const nlohmann::json& j, FrameConvention frame);
+// {"joint": value, ...}, rad or m.
+Result<JointValues> JointsFromJson(const nlohmann::json& j);
+
+Result<nlohmann::json> ReadJsonFile(const std::string& path);
+Status WriteJsonFile(const nlohmann::json& j, const std::string& path);
+
+}  // namespace arref

@@ -194,6 +194,7 @@ TEST_F(CliTest, BadInputGivesClearErrorsAndExitCodes) {
     truth["joints"]["joint_a2"] = "straight";
     std::ofstream(bad_joints) << truth.dump();
   }
+  std::ofstream(base + "-array.json") << "[1, 2]";
   struct Case { std::string args; int code; std::string text; };
   const std::vector<Case> cases = {
       {"register --scene /nonexistent.ply --seed 0,0,0,0,0,0,1", 3, "/nonexistent.ply"},
@@ -204,6 +205,9 @@ TEST_F(CliTest, BadInputGivesClearErrorsAndExitCodes) {
       {"register --scene " + base + ".ply --truth " + base + ".json --joints joint_z=1", 3, "joint_z"},
       {"register --scene " + base + ".ply --truth " + base + ".json --seed-index 9", 3, "1 seeds"},
       {"register --scene " + base + ".ply --truth " + bad_joints, 3, "joint 'joint_a2' is not a finite number"},
+      {"register --scene " + base + ".ply --truth " + base + "-array.json", 3, "is not a JSON object"},
+      {"register --scene " + base + ".ply --truth " + base + ".json --head-path " + base + "-array.json", 3,
+       "is not a JSON object"},
       {"register --scene " + base + ".ply --seed 500,500,0,0,0,0,1", 4, "no scene triangles"},
       {"register --scene " + base + ".ply --truth " + base + ".json --robot /nope.urdf", 3, "/nope.urdf"},
       {"register --scene " + base + ".json --seed 0,0,0,0,0,0,1", 3, "cannot read mesh"},

@@ -550,6 +550,8 @@ TEST(MockHeadset, BadCellFilesGetClearErrors) {
   };
   const std::vector<Case> cases{
       {"{not json", "is not valid JSON"},
+      {"[1, 2]", "is not a JSON object"},
+      {"{" + T + R"(, "frame": 3})", "frame must be a string"},
       {R"({"T_world_base": [1, 0, 0]})", "T_world_base: a 4x4 matrix must be 16 numbers"},
       {"{" + T + R"(, "seeds": [[0,0,0, 0,0,0,2]]})", "seeds[0]: pose quaternion is not unit length"},
       {"{" + T + R"(, "seeds": [[0,0,0, 0,0,0,1]], "joints": {"joint_a1": "up"}})", "joint 'joint_a1' is not a finite"},

@@ -46,7 +46,7 @@ Result<std::vector<Vec3>> ReadHeadPath(const std::string& file) {
   auto j = ReadJsonFile(file);
   if (!j.ok()) return j.status();
   if (!j->contains("head_path")) return Status::InvalidArgument("no \"head_path\" in the file");
-  auto frame = ParseFrameConvention(j->value("frame", "ros"));
+  auto frame = FrameOfFile(*j);
   if (!frame.ok()) return frame.status();
   auto path = PositionsFromJson((*j)["head_path"], *frame);
   if (!path.ok()) return path.status().WithContext("head_path");
@@ -81,7 +81,7 @@ Result<Inputs> ReadInputs(const RegisterArgs& args, FrameConvention frame) {
     if (args.seed_index < 0 || args.seed_index >= static_cast<int>(seeds.size()))
       return Status::InvalidArgument("--seed-index " + std::to_string(args.seed_index) + ": the truth file has " +
                                      std::to_string(seeds.size()) + " seeds");
-    auto truth_frame = ParseFrameConvention(in.truth->value("frame", "ros"));
+    auto truth_frame = FrameOfFile(*in.truth);
     if (!truth_frame.ok()) return truth_frame.status().WithContext("--truth frame");
     auto seed = PoseFromJson(seeds[args.seed_index], *truth_frame);
     if (!seed.ok()) return seed.status().WithContext("--truth seeds[" + std::to_string(args.seed_index) + "]");

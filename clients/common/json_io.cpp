@@ -82,14 +82,23 @@ Result<JointValues> JointsFromJson(const nlohmann::json& j) {
   return joints;
 }
 
+Result<FrameConvention> FrameOfFile(const nlohmann::json& file) {
+  if (!file.contains("frame")) return FrameConvention::kRos;
+  if (!file["frame"].is_string()) return Status::InvalidArgument("frame must be a string such as \"ros\" or \"unity\"");
+  return ParseFrameConvention(file["frame"].get<std::string>());
+}
+
 Result<nlohmann::json> ReadJsonFile(const std::string& path) {
   std::ifstream in(path);
   if (!in) return Status::NotFound("cannot open " + path);
+  nlohmann::json j;
   try {
-    return nlohmann::json::parse(in);
+    j = nlohmann::json::parse(in);
   } catch (const nlohmann::json::exception& e) {
     return Status::IoError(path + " is not valid JSON: " + e.what());
   }
+  if (!j.is_object()) return Status::InvalidArgument(path + " is not a JSON object");
+  return j;
 }
 
 Status WriteJsonFile(const nlohmann::json& j, const std::string& path) {

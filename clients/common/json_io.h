@@ -30,6 +30,10 @@ Result<std::vector<Vec3>> PositionsFromJson(const nlohmann::json& j, FrameConven
 // {"joint": value, ...}, rad or m.
 Result<JointValues> JointsFromJson(const nlohmann::json& j);
 
+// The frame convention a cell file's numbers are in: its "frame", "ros" when it has none.
+Result<FrameConvention> FrameOfFile(const nlohmann::json& file);
+
+// A JSON file whose top level is an object (every file arref reads is one).
 Result<nlohmann::json> ReadJsonFile(const std::string& path);
 Status WriteJsonFile(const nlohmann::json& j, const std::string& path);
 

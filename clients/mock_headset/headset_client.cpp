@@ -193,7 +193,7 @@ Status ReadTruth(const std::string& path, HeadsetScene* scene) {
   auto T = MatrixFromJson(j->value("T_world_base", nlohmann::json()));
   if (!T.ok()) return T.status().WithContext(path + ": T_world_base");
   scene->T_world_base_true = *T;
-  auto frame = ParseFrameConvention(j->value("frame", "ros"));
+  auto frame = FrameOfFile(*j);
   if (!frame.ok()) return frame.status().WithContext(path);
   const nlohmann::json seeds = j->value("seeds", nlohmann::json::array());
   if (!seeds.is_array()) return Status::InvalidArgument(path + ": seeds must be an array of poses");

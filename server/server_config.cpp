@@ -3,6 +3,8 @@
 #include <yaml-cpp/yaml.h>
 
 #include <filesystem>
+#include <limits>
+#include <type_traits>
 #include <fstream>
 #include <set>
 #include <sstream>
@@ -27,9 +29,32 @@ Status CheckKeys(const YAML::Node& node, const std::string& where, const std::se
   return Status::Ok();
 }
 
+// What a value of type T must be, for the error that says it is not.
+template <typename T>
+std::string Expected() {
+  if constexpr (std::is_same_v<T, bool>) return "true or false";
+  else if constexpr (std::is_unsigned_v<T> && sizeof(T) < sizeof(int))
+    return "a whole number in 0.." + std::to_string(std::numeric_limits<T>::max());
+  else if constexpr (std::is_unsigned_v<T>) return "a whole number >= 0";
+  else if constexpr (std::is_integral_v<T>) return "a whole number";
+  else if constexpr (std::is_floating_point_v<T>) return "a number";
+  else return "a string";
+}
+
+// yaml-cpp's own conversion error names neither the key nor the value ("bad conversion").
+template <typename T>
+T As(const YAML::Node& value, const std::string& name) {
+  try {
+    return value.as<T>();
+  } catch (const YAML::BadConversion& e) {
+    const std::string shown = value.IsScalar() ? "'" + value.Scalar() + "'" : "a list or mapping";
+    throw YAML::Exception(e.mark, name + ": " + shown + " is not " + Expected<T>());
+  }
+}
+
 template <typename T>
 void Read(const YAML::Node& node, const char* key, T& out) {
-  if (node[key]) out = node[key].as<T>();
+  if (const YAML::Node value = node[key]) out = As<T>(value, key);
 }
 
 std::string Resolve(const std::string& path, const std::string& base_dir) {
@@ -74,7 +99,7 @@ Status ReadRegistration(const YAML::Node& n, ServerConfig& c) {
                                                       "inlier_threshold_m", "sample_seed", "model_cache_entries"}));
   RegistrationOptions& o = c.registration;
   if (n["method"]) {
-    auto method = ParseMethod(n["method"].as<std::string>());
+    auto method = ParseMethod(As<std::string>(n["method"], "method"));
     if (!method.ok()) return method.status().WithContext("registration.method");
     o.method = *method;
   }
@@ -106,13 +131,16 @@ Result<RobotConfig> ReadRobot(const YAML::Node& n, std::size_t index, const std:
   }
   if (n["package_path"]) {
     const YAML::Node pp = n["package_path"];
-    if (pp.IsScalar()) r.package_path.push_back(Resolve(pp.as<std::string>(), base_dir));
+    if (pp.IsScalar()) r.package_path.push_back(Resolve(As<std::string>(pp, "package_path"), base_dir));
     else
-      for (const auto& p : pp) r.package_path.push_back(Resolve(p.as<std::string>(), base_dir));
+      for (const auto& p : pp) r.package_path.push_back(Resolve(As<std::string>(p, "package_path"), base_dir));
   }
   if (n["default_joints"]) {
     if (!n["default_joints"].IsMap()) return Status::InvalidArgument(where + ".default_joints: expected name: value");
-    for (const auto& kv : n["default_joints"]) r.default_joints[kv.first.as<std::string>()] = kv.second.as<double>();
+    for (const auto& kv : n["default_joints"]) {
+      const auto name = kv.first.as<std::string>();
+      r.default_joints[name] = As<double>(kv.second, "default_joints." + name);
+    }
   }
   return r;
 }

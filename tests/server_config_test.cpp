@@ -1,0 +1,59 @@
+// The server's YAML config: the shipped default loads, and each bad value is named with its
+// key, its text and what it must be (yaml-cpp alone says "bad conversion").
+#include <gtest/gtest.h>
+
+#include <string>
+#include <vector>
+
+#include "server_config.h"
+
+namespace arref::server {
+namespace {
+
+TEST(ServerConfig, ShippedDefaultLoadsAndValidates) {
+  auto config = LoadDefaultServerConfig();
+  ASSERT_TRUE(config.ok()) << config.status().ToString();
+  EXPECT_TRUE(ValidateServerConfig(*config).ok());
+  EXPECT_EQ(config->port, 7311);
+  EXPECT_FALSE(config->robots.empty());
+}
+
+TEST(ServerConfig, ValuesAreReadWithTheirTypes) {
+  auto config = ParseServerConfig(
+      "server: {port: 8000, workers: 3, idle_timeout_s: 2.5}\n"
+      "robots: [{id: kr5, urdf: builtin, default_joints: {joint_a2: -0.5}}]\n", "/tmp");
+  ASSERT_TRUE(config.ok()) << config.status().ToString();
+  EXPECT_EQ(config->port, 8000);
+  EXPECT_EQ(config->workers, 3);
+  EXPECT_DOUBLE_EQ(config->idle_timeout_s, 2.5);
+  ASSERT_EQ(config->robots.size(), 1u);
+  EXPECT_DOUBLE_EQ(config->robots[0].default_joints.at("joint_a2"), -0.5);
+}
+
+TEST(ServerConfig, BadValuesAreNamed) {
+  struct Case {
+    std::string yaml;
+    std::string expected;
+  };
+  const std::vector<Case> cases{
+      {"server:\n  port: abc\n", "port: 'abc' is not a whole number in 0..65535"},
+      {"server:\n  port: 99999\n", "port: '99999' is not a whole number in 0..65535"},
+      {"server:\n  workers: [2]\n", "workers: a list or mapping is not a whole number"},
+      {"limits:\n  max_sessions: -1\n", "max_sessions: '-1' is not a whole number >= 0"},
+      {"registration:\n  crop_radius_m: wide\n", "crop_radius_m: 'wide' is not a number"},
+      {"robots:\n  - id: kr5\n    urdf: builtin\n    default_joints: {joint_a1: up}\n",
+       "default_joints.joint_a1: 'up' is not a number"},
+      {"servr:\n  port: 1\n", "unknown key 'servr'"},
+      {"server: [1, 2\n", "YAML"},
+  };
+  for (const auto& c : cases) {
+    auto config = ParseServerConfig(c.yaml, "/tmp");
+    ASSERT_FALSE(config.ok()) << c.yaml;
+    EXPECT_NE(config.status().ToString().find(c.expected), std::string::npos) << c.yaml << config.status().ToString();
+  }
+  auto config = ParseServerConfig("server:\n  port: abc\n", "/tmp");
+  EXPECT_NE(config.status().ToString().find("line 2, column 9"), std::string::npos) << config.status().ToString();
+}
+
+}  // namespace
+}  // namespace arref::server

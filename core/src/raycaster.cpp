@@ -32,10 +32,6 @@ PinholeCamera PinholeCamera::FromFov(int width, int height, double fov_horizonta
   return c;
 }
 
-Vec3 PinholeCamera::RayDirection(int u, int v) const {
-  return Vec3((u + 0.5 - cx()) / focal_px, (v + 0.5 - cy()) / focal_px, 1.0).normalized();
-}
-
 struct RayCaster::Impl {
   RTCDevice device = nullptr;
   RTCScene scene = nullptr;

@@ -19,7 +19,10 @@ struct PinholeCamera {
   static PinholeCamera FromFov(int width, int height, double fov_horizontal_deg);
   double cx() const { return 0.5 * width; }
   double cy() const { return 0.5 * height; }
-  Vec3 RayDirection(int u, int v) const;  // unit, camera frame
+  // Unit, camera frame. Inline: fusion and ray casting ask for every pixel of every view.
+  Vec3 RayDirection(int u, int v) const {
+    return Vec3((u + 0.5 - cx()) / focal_px, (v + 0.5 - cy()) / focal_px, 1.0).normalized();
+  }
   // Pixel index hit by a camera-frame point, or -1 when behind the camera or off the image.
   // Inline and in float too: TSDF fusion calls it for every voxel of every view.
   template <class Scalar>

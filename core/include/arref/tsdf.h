@@ -3,10 +3,10 @@
 #pragma once
 
 #include <array>
+#include <cstddef>
 #include <cstdint>
 #include <deque>
 #include <unordered_map>
-#include <unordered_set>
 #include <vector>
 
 #include "arref/geometry.h"
@@ -81,11 +81,14 @@ class TsdfVolume {
   Eigen::Vector3i BlockOf(const Vec3& p) const { return BlockOf(p, options_.voxel_m); }
   void MarkNearBlocks(const std::vector<Vec3f>& points);
   Status Allocate(const std::vector<Eigen::Vector3i>& band);
-  bool WouldAllocate(Key k) const { return (!near_only_ || near_.count(k)) && !index_.count(k); }
+  bool WouldAllocate(const Eigen::Vector3i& block) const;
   template <class Scalar>
   void UpdateVoxels(Block& block, const PinholeCamera& camera, const Eigen::Matrix<Scalar, 3, 1>& origin,
                     const Eigen::Matrix<Scalar, 3, 3>& step, const RangeImage& range,
                     const std::vector<float>& incidence) const;
+  void UpdateVoxelsFast(Block& block, const PinholeCamera& camera, const Vec3f& origin, const Eigen::Matrix3f& step,
+                        const RangeImage& range, const std::vector<float>& incidence) const;
+  static bool OffImage(const PinholeCamera& camera, const Vec3f& origin, const Eigen::Matrix3f& step);
   void UpdateBlock(Block& block, const PinholeCamera& camera, const Iso3& T_camera_volume,
                    const RangeImage& range, const std::vector<float>& incidence) const;
   // For each block, its 27 neighbours (self at 13) as indices into blocks_, -1 if absent.
@@ -102,7 +105,15 @@ class TsdfVolume {
   std::deque<Block> blocks_;
   std::unordered_map<Key, int> index_;
   bool near_only_ = false;
-  std::unordered_set<Key> near_;  // the blocks near options_.near_points, if given
+  // The blocks near options_.near_points, if given: per block in [lo, hi], kFar, kNearFree or
+  // its index in blocks_.
+  static constexpr int kFar = -2, kNearFree = -1;
+  struct NearGrid {
+    Eigen::Vector3i lo = Eigen::Vector3i::Zero(), hi = Eigen::Vector3i::Zero();
+    std::vector<int> slot;
+    std::ptrdiff_t Offset(const Eigen::Vector3i& block) const;  // into slot; -1 outside [lo, hi]
+  };
+  NearGrid near_;
 };
 
 }  // namespace arref

@@ -537,8 +537,8 @@ TEST(ServerIntegration, VersionMismatchNamesBothVersions) {
   ExpectAnotherHeadsetSucceeds(server);
 }
 
-// The mock headset reads `arref simulate`'s cell files with the command line's reader: each
-// malformed part is named, and it stops before it connects (no server runs here).
+// The mock headset reads `arref simulate`'s cell files and typed seeds with the command line's
+// reader: each malformed part is named, and it stops before it connects (no server runs here).
 TEST(MockHeadset, BadCellFilesGetClearErrors) {
   const std::string dir = ::testing::TempDir() + "/arref_mock_cells";
   std::filesystem::create_directories(dir);
@@ -564,6 +564,10 @@ TEST(MockHeadset, BadCellFilesGetClearErrors) {
     EXPECT_EQ(r.exit_code, 3) << cases[i].json << "\n" << r.out << r.err;
     EXPECT_NE((r.out + r.err).find(cases[i].expected_output), std::string::npos) << cases[i].json << "\n" << r.out << r.err;
   }
+  // A typed seed goes through the same pose check.
+  const auto r = arref::testing::RunCommand(kMockPath + " --port 1 --scene " + dir + "/tri.obj --seed 0,0,0,0,0,0,2");
+  EXPECT_EQ(r.exit_code, 3) << r.out << r.err;
+  EXPECT_NE(r.err.find("--seed: pose quaternion is not unit length"), std::string::npos) << r.err;
 }
 
 // Each misbehaviour flag of the mock headset executable gets a clear error (or a logged

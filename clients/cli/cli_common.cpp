@@ -3,7 +3,6 @@
 #include <spdlog/spdlog.h>
 #include <unistd.h>
 
-#include <cmath>
 #include <sstream>
 
 #include "arref/builtin.h"
@@ -51,26 +50,6 @@ Result<RobotModel> LoadRobot(const RobotArgs& args) {
   return RobotModel::Load(urdf, options);
 }
 
-namespace {
-Result<std::vector<double>> ParseNumbers(const std::string& text, std::size_t count, const std::string& what) {
-  std::vector<double> values;
-  std::stringstream ss(text);
-  for (std::string item; std::getline(ss, item, ',');) {
-    try {
-      std::size_t used = 0;
-      values.push_back(std::stod(item, &used));
-      if (used != item.size()) throw std::invalid_argument(item);
-    } catch (const std::exception&) {
-      return Status::InvalidArgument(what + ": '" + item + "' is not a number");
-    }
-    if (!std::isfinite(values.back())) return Status::InvalidArgument(what + ": '" + item + "' is not finite");
-  }
-  if (values.size() != count)
-    return Status::InvalidArgument(what + ": expected " + std::to_string(count) + " comma-separated numbers, got " +
-                                   std::to_string(values.size()));
-  return values;
-}
-}  // namespace
 
 Result<JointValues> ParseJoints(const std::string& text) {
   JointValues joints;
@@ -85,12 +64,6 @@ Result<JointValues> ParseJoints(const std::string& text) {
     joints[item.substr(0, eq)] = value->front();
   }
   return joints;
-}
-
-Result<Iso3> ParsePose(const std::string& text, FrameConvention frame) {
-  auto v = ParseNumbers(text, 7, "pose x,y,z,qx,qy,qz,qw");
-  if (!v.ok()) return v.status();
-  return PoseFromNumbers(*v, frame);
 }
 
 bool StderrIsTerminal() { return isatty(STDERR_FILENO) != 0; }

@@ -1,4 +1,4 @@
-// Pieces shared by the `arref` subcommands: exit codes, robot options, pose parsing.
+// Pieces shared by the `arref` subcommands: exit codes, robot options, joint parsing.
 #pragma once
 
 #include <CLI/CLI.hpp>
@@ -10,7 +10,7 @@
 #include "arref/geometry.h"
 #include "arref/robot_model.h"
 #include "arref/status.h"
-#include "json_io.h"  // the JSON forms the subcommands read and write
+#include "client_io.h"  // poses, positions and joints as the subcommands read and write them
 
 namespace arref::cli {
 
@@ -37,8 +37,6 @@ void AddRobotOptions(CLI::App& app, RobotArgs& args);
 Result<RobotModel> LoadRobot(const RobotArgs& args);
 Result<JointValues> ParseJoints(const std::string& text);
 
-// "x,y,z,qx,qy,qz,qw" in the given convention, to an internal pose.
-Result<Iso3> ParsePose(const std::string& text, FrameConvention frame);
 
 // True when stderr is a terminal: progress lines are for people, not logs.
 bool StderrIsTerminal();

@@ -22,7 +22,7 @@
 #include "arref/builtin.h"
 #include "arref/pipeline.h"
 #include "arref/sim/cell_simulator.h"
-#include "json_io.h"
+#include "client_io.h"
 
 namespace arref::headset {
 namespace {

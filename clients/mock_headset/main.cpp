@@ -6,10 +6,9 @@
 
 #include <iostream>
 #include <nlohmann/json.hpp>
-#include <sstream>
 
 #include "headset_client.h"
-#include "json_io.h"
+#include "client_io.h"
 
 namespace {
 
@@ -71,30 +70,14 @@ Misbehaviour ChosenMisbehaviour(const Args& a) {
   return Misbehaviour::kNone;
 }
 
-Result<Iso3> ParseSeed(const std::string& text, FrameConvention frame) {
-  std::vector<double> v;
-  std::stringstream in(text);
-  for (std::string item; std::getline(in, item, ',');) {
-    try {
-      v.push_back(std::stod(item));
-    } catch (const std::exception&) {
-      return Status::InvalidArgument("--seed: '" + item + "' is not a number");
-    }
-  }
-  if (v.size() != 7) return Status::InvalidArgument("--seed needs x,y,z,qx,qy,qz,qw");
-  auto seed = PoseFromNumbers(v, frame);
-  if (!seed.ok()) return seed.status().WithContext("--seed");
-  return seed;
-}
-
 Result<HeadsetScene> BuildScene(const Args& a) {
   if (a.scene.empty()) return SimulatedScene(a.rng_seed);
   auto frame = ParseFrameConvention(a.frame);
   if (!frame.ok()) return frame.status();
   std::optional<Iso3> seed;
   if (!a.seed.empty()) {
-    auto s = ParseSeed(a.seed, *frame);
-    if (!s.ok()) return s.status();
+    auto s = ParsePose(a.seed, *frame);
+    if (!s.ok()) return s.status().WithContext("--seed");
     seed = *s;
   }
   return SceneFromFiles(a.scene, *frame, a.truth, seed);

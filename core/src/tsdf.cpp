@@ -74,8 +74,8 @@ void TsdfVolume::MarkNearBlocks(const std::vector<Vec3f>& points) {
   near_.lo = near_.hi = near.front();
   for (const Eigen::Vector3i& b : near) near_.lo = near_.lo.cwiseMin(b), near_.hi = near_.hi.cwiseMax(b);
   const Eigen::Vector3i dims = near_.hi - near_.lo + Eigen::Vector3i::Ones();
-  near_.slot.assign(static_cast<std::size_t>(dims.x()) * dims.y() * dims.z(), kFar);
-  for (const Eigen::Vector3i& b : near) near_.slot[near_.Offset(b)] = kNearFree;
+  near_.slot.assign(static_cast<std::size_t>(dims.x()) * dims.y() * dims.z(), Near::kFar);
+  for (const Eigen::Vector3i& b : near) near_.slot[near_.Offset(b)] = Near::kFree;
 }
 
 std::ptrdiff_t TsdfVolume::NearGrid::Offset(const Eigen::Vector3i& b) const {
@@ -87,7 +87,7 @@ std::ptrdiff_t TsdfVolume::NearGrid::Offset(const Eigen::Vector3i& b) const {
 bool TsdfVolume::WouldAllocate(const Eigen::Vector3i& b) const {
   if (!near_only_) return !index_.count(KeyOf(b));
   const std::ptrdiff_t at = near_.Offset(b);
-  return at >= 0 && near_.slot[at] == kNearFree;
+  return at >= 0 && near_.slot[at] == Near::kFree;
 }
 
 TsdfVolume::Key TsdfVolume::KeyOf(const Eigen::Vector3i& b) {
@@ -159,7 +159,7 @@ Status TsdfVolume::Allocate(const std::vector<Eigen::Vector3i>& band) {
     if (blocks_.size() >= options_.max_blocks)
       return Status::ResourceExhausted("TSDF fusion needs more than " + std::to_string(options_.max_blocks) +
                                        " voxel blocks: fusion.voxel_m is too small for the scene");
-    if (near_only_) near_.slot[near_.Offset(b)] = static_cast<int>(blocks_.size());
+    if (near_only_) near_.slot[near_.Offset(b)] = Near::kAllocated;
     index_.emplace(KeyOf(b), static_cast<int>(blocks_.size()));
     blocks_.push_back(Block{b, std::vector<Voxel>(kVoxelsPerBlock)});
   }
@@ -180,7 +180,7 @@ void TsdfVolume::UpdateBlock(Block& block, const PinholeCamera& camera, const Is
 }
 
 // The voxel update of UpdateVoxels in float with one division per voxel instead of three: the
-// projection multiplies by 1/z, the running mean by 1/(w+1) from a table (weights are whole
+// projection (PinholeCamera::Project's) multiplies by 1/z, the running mean by 1/(w+1) from a table (weights are whole
 // numbers up to kMaxWeight). A block whose corners all project off one side of the image is
 // skipped whole. Rounding differs from UpdateVoxels' in the last bits, which is why the
 // simulator (which must reproduce its meshes bit for bit) keeps the double update.
@@ -221,17 +221,15 @@ void TsdfVolume::UpdateVoxelsFast(Block& block, const PinholeCamera& camera, con
 // True when every corner of the block is in front of the camera and all project beyond the
 // same edge of the image: then no voxel of it projects onto the image.
 bool TsdfVolume::OffImage(const PinholeCamera& camera, const Vec3f& origin, const Eigen::Matrix3f& step) {
-  const float f = static_cast<float>(camera.focal_px);
   std::array<int, 4> beyond = {0, 0, 0, 0};  // left, right, top, bottom
   for (int c = 0; c < 8; ++c) {
     const Vec3f p = origin + step * Vec3f((c & 1) * (B - 1), ((c >> 1) & 1) * (B - 1), ((c >> 2) & 1) * (B - 1));
     if (p.z() <= 1e-6f) return false;
-    const float u = f * p.x() / p.z() + static_cast<float>(camera.cx());
-    const float v = f * p.y() / p.z() + static_cast<float>(camera.cy());
-    beyond[0] += u < 0;
-    beyond[1] += u >= static_cast<float>(camera.width);
-    beyond[2] += v < 0;
-    beyond[3] += v >= static_cast<float>(camera.height);
+    const Eigen::Vector2f uv = camera.Project(p);
+    beyond[0] += uv.x() < 0;
+    beyond[1] += uv.x() >= static_cast<float>(camera.width);
+    beyond[2] += uv.y() < 0;
+    beyond[3] += uv.y() >= static_cast<float>(camera.height);
   }
   return std::any_of(beyond.begin(), beyond.end(), [](int n) { return n == 8; });
 }

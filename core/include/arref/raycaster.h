@@ -28,10 +28,15 @@ struct PinholeCamera {
   template <class Scalar>
   int PixelOf(const Eigen::Matrix<Scalar, 3, 1>& p) const {
     if (p.z() <= Scalar(1e-6)) return -1;
-    const Scalar u = static_cast<Scalar>(focal_px) * p.x() / p.z() + static_cast<Scalar>(cx());
-    const Scalar v = static_cast<Scalar>(focal_px) * p.y() / p.z() + static_cast<Scalar>(cy());
-    if (!(u >= 0 && v >= 0 && u < width && v < height)) return -1;
-    return static_cast<int>(v) * width + static_cast<int>(u);
+    const Eigen::Matrix<Scalar, 2, 1> uv = Project(p);
+    if (!(uv.x() >= 0 && uv.y() >= 0 && uv.x() < width && uv.y() < height)) return -1;
+    return static_cast<int>(uv.y()) * width + static_cast<int>(uv.x());
+  }
+  // Image coordinates (pixels, continuous) of a camera-frame point in front of the camera.
+  template <class Scalar>
+  Eigen::Matrix<Scalar, 2, 1> Project(const Eigen::Matrix<Scalar, 3, 1>& p) const {
+    return {static_cast<Scalar>(focal_px) * p.x() / p.z() + static_cast<Scalar>(cx()),
+            static_cast<Scalar>(focal_px) * p.y() / p.z() + static_cast<Scalar>(cy())};
   }
 };
 

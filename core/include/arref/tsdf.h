@@ -105,12 +105,12 @@ class TsdfVolume {
   std::deque<Block> blocks_;
   std::unordered_map<Key, int> index_;
   bool near_only_ = false;
-  // The blocks near options_.near_points, if given: per block in [lo, hi], kFar, kNearFree or
-  // its index in blocks_.
-  static constexpr int kFar = -2, kNearFree = -1;
+  // The blocks near options_.near_points, if given, over their bounds [lo, hi]: which are far,
+  // which near and not yet allocated, which allocated.
+  enum class Near : std::uint8_t { kFar, kFree, kAllocated };
   struct NearGrid {
     Eigen::Vector3i lo = Eigen::Vector3i::Zero(), hi = Eigen::Vector3i::Zero();
-    std::vector<int> slot;
+    std::vector<Near> slot;
     std::ptrdiff_t Offset(const Eigen::Vector3i& block) const;  // into slot; -1 outside [lo, hi]
   };
   NearGrid near_;

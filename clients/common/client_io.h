@@ -1,5 +1,6 @@
-// JSON forms of poses, positions, matrices and joint states, shared by the `arref` command line
-// and the mock headset: both read the cell files `arref simulate` writes, so one reader checks them.
+// How the clients read and write poses, positions, matrices and joint states: as JSON (the cell
+// files `arref simulate` writes, which the `arref` command line and the mock headset both read, so
+// one reader checks them) and as the comma-separated numbers a user types for a pose.
 #pragma once
 
 #include <nlohmann/json_fwd.hpp>
@@ -17,6 +18,10 @@ namespace arref {
 // x, y, z, qx, qy, qz, qw in the given convention, to an internal pose; the quaternion must be
 // unit length (to 1e-3), so a typo is an error rather than a silently normalised rotation.
 Result<Iso3> PoseFromNumbers(const std::vector<double>& numbers, FrameConvention frame);
+// Exactly `count` finite comma-separated numbers; `what` names them in the error.
+Result<std::vector<double>> ParseNumbers(const std::string& text, std::size_t count, const std::string& what);
+// "x,y,z,qx,qy,qz,qw" in the given convention, to an internal pose.
+Result<Iso3> ParsePose(const std::string& text, FrameConvention frame);
 
 // Row-major 4x4 as 16 numbers, and back.
 nlohmann::json MatrixToJson(const Iso3& T);

@@ -1,8 +1,9 @@
-#include "json_io.h"
+#include "client_io.h"
 
 #include <cmath>
 #include <fstream>
 #include <nlohmann/json.hpp>
+#include <sstream>
 
 namespace arref {
 
@@ -12,6 +13,31 @@ Result<Iso3> PoseFromNumbers(const std::vector<double>& n, FrameConvention frame
   if (std::abs(q.norm() - 1.0) > 1e-3)
     return Status::InvalidArgument("pose quaternion is not unit length (norm " + std::to_string(q.norm()) + ")");
   return PoseToRos(Vec3(n[0], n[1], n[2]), q, frame);
+}
+
+Result<std::vector<double>> ParseNumbers(const std::string& text, std::size_t count, const std::string& what) {
+  std::vector<double> values;
+  std::stringstream ss(text);
+  for (std::string item; std::getline(ss, item, ',');) {
+    try {
+      std::size_t used = 0;
+      values.push_back(std::stod(item, &used));
+      if (used != item.size()) throw std::invalid_argument(item);
+    } catch (const std::exception&) {
+      return Status::InvalidArgument(what + ": '" + item + "' is not a number");
+    }
+    if (!std::isfinite(values.back())) return Status::InvalidArgument(what + ": '" + item + "' is not finite");
+  }
+  if (values.size() != count)
+    return Status::InvalidArgument(what + ": expected " + std::to_string(count) + " comma-separated numbers, got " +
+                                   std::to_string(values.size()));
+  return values;
+}
+
+Result<Iso3> ParsePose(const std::string& text, FrameConvention frame) {
+  auto v = ParseNumbers(text, 7, "pose x,y,z,qx,qy,qz,qw");
+  if (!v.ok()) return v.status();
+  return PoseFromNumbers(*v, frame);
 }
 
 nlohmann::json MatrixToJson(const Iso3& T) {

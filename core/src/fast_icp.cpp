@@ -5,6 +5,8 @@
 
 #include <Eigen/Cholesky>
 
+#include <cmath>
+
 namespace arref {
 namespace {
 
@@ -15,10 +17,12 @@ using Vec6 = Eigen::Matrix<double, 6, 1>;
 struct Normal {
   Mat6 H = Mat6::Zero();
   Vec6 b = Vec6::Zero();
+  double cost = 0.0;  // the robust (Geman-McClure) cost of the pairs
   std::size_t count = 0;
   Normal& operator+=(const Normal& o) {
     H += o.H;
     b += o.b;
+    cost += o.cost;
     count += o.count;
     return *this;
   }
@@ -48,6 +52,7 @@ Normal Accumulate(const PointCloud& source, const TargetCloud& target, const Eig
     J.tail<3>() = p.cast<double>().cross(n.cast<double>());
     eq.H.selfadjointView<Eigen::Upper>().rankUpdate(J, w);
     eq.b += w * r * J;
+    eq.cost += k * r * r;  // s^2 r^2 / (s^2 + r^2)
     ++eq.count;
   }
   return eq;
@@ -102,10 +107,17 @@ IcpStats AlignPointToPlane(const PointCloud& source, const TargetCloud& target, 
                            const IcpSettings& settings) {
   IcpStats stats;
   stats.T_target_source = T_target_source;
+  double last_cost = -1;
   for (; stats.iterations < settings.max_iterations; ++stats.iterations) {
     const Normal eq = BuildNormalEquations(source, target, stats.T_target_source, settings);
     stats.correspondences = eq.count;
     if (eq.count < 6) break;  // too few to constrain the pose: keep the last one
+    const double cost = eq.cost / static_cast<double>(source.size());
+    if (last_cost > 0 && std::abs(last_cost - cost) < settings.converged_cost_ratio * last_cost) {
+      stats.converged = true;  // the pose the cost was measured at is kept; no further step
+      break;
+    }
+    last_cost = cost;
     const Vec6 xi = SolveStep(eq, settings.yaw_only);
     if (!xi.allFinite()) break;
     stats.T_target_source = Exp(xi) * stats.T_target_source;

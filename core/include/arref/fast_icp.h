@@ -33,6 +33,11 @@ struct IcpSettings {
   bool yaw_only = false;        // 4-DoF: x, y, z and yaw about gravity
   double converged_translation_m = 1e-4;  // a step this small ends the level
   double converged_rotation_rad = 1e-4;
+  // So does a robust cost (mean over the source points) that changed by less than this fraction
+  // since the last iteration: the termination of Besl & McKay 1992 (their tau, relative here).
+  // Near the end a level can slide ~1 mm per iteration along a valley where the cost is flat;
+  // those iterations moved no run of the bench closer (docs/engine.md). 0 turns it off.
+  double converged_cost_ratio = 1e-3;
 };
 
 struct IcpStats {

@@ -1,6 +1,7 @@
-// One ICP iteration: arref's point-to-plane kernel against PCL 1.13's ICP, on the same
-// simulated small-configuration KR5 cell (16,000 scene points). The hardware floor from the
-// domain notes is N_source x ~150 ns / threads; the counters report ns per source point.
+// One ICP iteration: arref's kernel (point-to-plane, and point-to-point like PCL's) against
+// PCL 1.13's ICP, on the same simulated small-configuration KR5 cell (16,000 scene points).
+// The hardware floor from the domain notes is N_source x ~150 ns / threads; the counters
+// report ns per source point.
 //   build/bench/arref_icp_benchmark --benchmark_repetitions=5 --benchmark_report_aggregates_only=true
 #include <benchmark/benchmark.h>
 #include <pcl/point_types.h>
@@ -70,15 +71,17 @@ PointCloud FirstN(const PointCloud& c, std::size_t n) {
 // 1 cm off the truth, as in the last iterations of a registration.
 Iso3 NearTruth() { return MakeYawPose(0.01, 0, 0, 0) * Cell().T_world_base; }
 
+// Arguments: source points, threads, metric (0 point-to-plane, 1 point-to-point).
 void BM_ArrefIteration(benchmark::State& state) {
   tbb::global_control threads(tbb::global_control::max_allowed_parallelism, static_cast<std::size_t>(state.range(1)));
   // In the order arref-icp queries them (SpatiallyOrdered, as its Thin does).
   const PointCloud source = SpatiallyOrdered(FirstN(Cell().model, static_cast<std::size_t>(state.range(0))));
   const TargetCloud target(Cell().scene);
   IcpSettings s;
+  s.metric = state.range(2) == 0 ? IcpMetric::kPointToPlane : IcpMetric::kPointToPoint;
   s.max_iterations = 1;
   s.max_correspondence_m = 0.05;
-  for (auto _ : state) benchmark::DoNotOptimize(AlignPointToPlane(source, target, NearTruth(), s));
+  for (auto _ : state) benchmark::DoNotOptimize(Align(source, target, NearTruth(), s));
   // Seconds per source point per iteration (printed with an SI prefix, e.g. 120n).
   state.counters["per_point"] = benchmark::Counter(static_cast<double>(source.size()),
                                                    benchmark::Counter::kIsIterationInvariantRate | benchmark::Counter::kInvert);
@@ -170,7 +173,7 @@ BENCHMARK(BM_Request)->Args({1, 1, 0})->Args({1, 0, 0})->Args({0, 1, 0})->Args({
 BENCHMARK(BM_NewJointState)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_NewJointStateOneByOne)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ExpectedInContext)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
-BENCHMARK(BM_ArrefIteration)->ArgsProduct({{2000, 5000}, {1, 2}})->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_ArrefIteration)->ArgsProduct({{2000, 5000}, {1, 2}, {0, 1}})->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_PclIteration)->Arg(2000)->Arg(5000)->Unit(benchmark::kMillisecond);
 
 }  // namespace

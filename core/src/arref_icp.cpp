@@ -55,11 +55,18 @@ std::vector<Iso3> Hypotheses(const Iso3& seed, const ArrefIcpParams& p, int posi
 
 // Coarse 4-DoF alignment of each hypothesis on a thin model, scored at 3 cm. Hypotheses run
 // in parallel (each small ICP on one thread scales better than splitting 400 points).
-std::vector<Candidate> CoarseSearch(const PointCloud& coarse, const TargetCloud& target,
-                                    const std::vector<Iso3>& starts) {
+// arref-icp's ICP stays in the 4-DoF subgroup (robots stand upright in a gravity-aligned world).
+IcpSettings YawOnly(const ArrefIcpParams& p, int max_iterations) {
   IcpSettings s;
+  s.metric = p.metric;
   s.yaw_only = true;
-  s.max_iterations = 6;
+  s.max_iterations = max_iterations;
+  return s;
+}
+
+std::vector<Candidate> CoarseSearch(const PointCloud& coarse, const TargetCloud& target,
+                                    const std::vector<Iso3>& starts, const ArrefIcpParams& p) {
+  const IcpSettings s = YawOnly(p, 6);
   std::vector<Candidate> out(starts.size());
   tbb::parallel_for(std::size_t{0}, starts.size(), [&](std::size_t i) {
     const IcpStats st = AlignCoarseToFine(coarse, target, starts[i], {0.3, 0.15, 0.08}, s);
@@ -92,19 +99,15 @@ std::vector<Candidate> Distinct(std::vector<Candidate> all, std::size_t count) {
 const std::vector<double> kApproachLevels = {0.08, 0.04};
 const std::vector<double> kPolishLevels = {0.02, 0.012};
 
-Candidate Approach(const PointCloud& approach, const TargetCloud& target, const Candidate& start) {
-  IcpSettings s;
-  s.yaw_only = true;
-  s.max_iterations = 15;
-  const IcpStats st = AlignCoarseToFine(approach, target, start.T_world_base, kApproachLevels, s);
+Candidate Approach(const PointCloud& approach, const TargetCloud& target, const Candidate& start,
+                   const ArrefIcpParams& p) {
+  const IcpStats st = AlignCoarseToFine(approach, target, start.T_world_base, kApproachLevels, YawOnly(p, 15));
   return {st.T_target_source, start.score, start.iterations + st.iterations};
 }
 
 Candidate Refine(const PointCloud& fine, const TargetCloud& target, const Candidate& start, const ArrefIcpParams& p,
                  const std::vector<double>& levels) {
-  IcpSettings s;
-  s.yaw_only = true;
-  s.max_iterations = 15;
+  IcpSettings s = YawOnly(p, 15);
   IcpStats st = AlignCoarseToFine(fine, target, start.T_world_base, levels, s);
   int iterations = start.iterations + st.iterations;
   if (p.final_six_dof) {
@@ -267,12 +270,12 @@ Result<std::array<std::shared_ptr<const PointCloud>, 3>> FittedModel(const Metho
 std::vector<Candidate> SearchPoses(const PointCloud& coarse, const TargetCloud& target, const Iso3& seed,
                                    const ArrefIcpParams& p, RegistrationOutput* out) {
   out->stages.push_back("yaw-search");
-  std::vector<Candidate> candidates = CoarseSearch(coarse, target, Hypotheses(seed, p, 0));
+  std::vector<Candidate> candidates = CoarseSearch(coarse, target, Hypotheses(seed, p, 0), p);
   const double best_coarse = Distinct(candidates, 1).front().score;
   if (best_coarse < p.expand_below_score && p.position_steps > 0) {
     spdlog::debug("arref-icp: best coarse score {:.2f} < {:.2f}: searching positions too", best_coarse,
                   p.expand_below_score);
-    const auto more = CoarseSearch(coarse, target, Hypotheses(seed, p, p.position_steps));
+    const auto more = CoarseSearch(coarse, target, Hypotheses(seed, p, p.position_steps), p);
     candidates.insert(candidates.end(), more.begin(), more.end());
     out->stages.push_back("position-search");
   }
@@ -305,7 +308,7 @@ Result<RegistrationOutput> RegisterArrefIcp(const MethodInput& in) {
   timer.Step("pose-search");
   std::vector<Candidate> refined;
   for (const auto& c : Distinct(candidates, static_cast<std::size_t>(p.refine_top)))
-    refined.push_back(Refine(fine, target, Approach(approach, target, c), p, kPolishLevels));
+    refined.push_back(Refine(fine, target, Approach(approach, target, c, p), p, kPolishLevels));
   refined = Distinct(refined, 2);
   out.stages.push_back("arref-icp");
   timer.Step("refine");

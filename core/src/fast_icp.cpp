@@ -28,32 +28,62 @@ struct Normal {
   }
 };
 
-// Point-to-plane residual r = n . (T p - q) with the left perturbation T <- exp(xi) T,
-// xi = (v, w): dr/dxi = [n^T, (T p x n)^T] (Low 2004, "Linear least-squares optimization for
-// point-to-plane ICP", eq. 8, in Lie-algebra form).
+// One weighted residual r with Jacobian J, into the normal equations.
+void AddPair(Normal& eq, double r, const Vec6& J, double w) {
+  eq.H.selfadjointView<Eigen::Upper>().rankUpdate(J, w);
+  eq.b += w * r * J;
+}
+
+// Geman-McClure (Black & Rangarajan 1996): the weight (s^2 / (s^2 + r^2))^2 of a residual; its
+// robust cost s^2 r^2 / (s^2 + r^2) is added to *cost.
+double Weight(double r_sq, double scale_sq, double* cost) {
+  const double k = scale_sq / (scale_sq + r_sq);
+  *cost += k * r_sq;
+  return k * k;
+}
+
+// Both metrics use the left perturbation T <- exp(xi) T, xi = (v, w), under which the
+// transformed point p' = T p moves by v + w x p'. A residual a . (p' - q) along a unit axis a
+// then has dr/dxi = [a^T, (p' x a)^T].
+// Point-to-plane (a = the target normal n): Low 2004, "Linear least-squares optimization for
+// point-to-plane ICP", eq. 8, in Lie-algebra form. Point-to-point (Besl & McKay 1992): the
+// three residuals along x, y and z, one robust weight on their norm |p' - q|.
+template <IcpMetric kMetric>
+void AddCorrespondence(Normal& eq, const Vec3f& p, const Vec3f& q, const Vec3f& n, double scale_sq) {
+  const Eigen::Vector3d pd = p.cast<double>();
+  Vec6 J;
+  if constexpr (kMetric == IcpMetric::kPointToPlane) {
+    const double r = n.dot(p - q);
+    J << n.cast<double>(), pd.cross(n.cast<double>());
+    AddPair(eq, r, J, Weight(r * r, scale_sq, &eq.cost));
+  } else {
+    const Eigen::Vector3d e = (p - q).cast<double>();
+    const double w = Weight(e.squaredNorm(), scale_sq, &eq.cost);
+    for (int a = 0; a < 3; ++a) {
+      const Eigen::Vector3d axis = Eigen::Vector3d::Unit(a);
+      J << axis, pd.cross(axis);
+      AddPair(eq, e(a), J, w);
+    }
+  }
+  ++eq.count;
+}
+
+template <IcpMetric kMetric>
 Normal Accumulate(const PointCloud& source, const TargetCloud& target, const Eigen::Isometry3f& T,
                   const IcpSettings& s, std::size_t begin, std::size_t end) {
   Normal eq;
   const float max_sq = static_cast<float>(s.max_correspondence_m * s.max_correspondence_m);
   const double scale_sq = s.kernel_scale_m * s.kernel_scale_m;
   const Eigen::Matrix3f R = T.linear();
+  const bool check_normals = source.has_normals();
   for (std::size_t i = begin; i < end; ++i) {
     const Vec3f p = T * source.points[i];
     std::uint32_t j;
     float sq;
     if (!target.index().NearestWithin(p, max_sq, &j, &sq)) continue;
     const Vec3f& n = target.normals()[j];
-    if ((R * source.normals[i]).dot(n) < s.min_normal_cos) continue;
-    const double r = n.dot(p - target.index().points()[j]);
-    const double k = scale_sq / (scale_sq + r * r);
-    const double w = k * k;
-    Vec6 J;
-    J.head<3>() = n.cast<double>();
-    J.tail<3>() = p.cast<double>().cross(n.cast<double>());
-    eq.H.selfadjointView<Eigen::Upper>().rankUpdate(J, w);
-    eq.b += w * r * J;
-    eq.cost += k * r * r;  // s^2 r^2 / (s^2 + r^2)
-    ++eq.count;
+    if (check_normals && (R * source.normals[i]).dot(n) < s.min_normal_cos) continue;
+    AddCorrespondence<kMetric>(eq, p, target.index().points()[j], n, scale_sq);
   }
   return eq;
 }
@@ -64,7 +94,9 @@ Normal BuildNormalEquations(const PointCloud& source, const TargetCloud& target,
   Normal eq = tbb::parallel_deterministic_reduce(
       tbb::blocked_range<std::size_t>(0, source.size(), 256), Normal{},
       [&](const tbb::blocked_range<std::size_t>& r, Normal acc) {
-        acc += Accumulate(source, target, Tf, s, r.begin(), r.end());
+        acc += s.metric == IcpMetric::kPointToPlane
+                   ? Accumulate<IcpMetric::kPointToPlane>(source, target, Tf, s, r.begin(), r.end())
+                   : Accumulate<IcpMetric::kPointToPoint>(source, target, Tf, s, r.begin(), r.end());
         return acc;
       },
       [](Normal a, const Normal& b) { return a += b; });
@@ -103,8 +135,8 @@ Iso3 Exp(const Vec6& xi) {
 
 TargetCloud::TargetCloud(PointCloud scene) : normals_(std::move(scene.normals)), index_(std::move(scene.points)) {}
 
-IcpStats AlignPointToPlane(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
-                           const IcpSettings& settings) {
+IcpStats Align(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
+               const IcpSettings& settings) {
   IcpStats stats;
   stats.T_target_source = T_target_source;
   double last_cost = -1;
@@ -137,7 +169,7 @@ IcpStats AlignCoarseToFine(const PointCloud& source, const TargetCloud& target, 
   for (double d : distances_m) {
     settings.max_correspondence_m = d;
     settings.kernel_scale_m = std::max(0.005, d / 3);  // the kernel tightens with the search radius
-    const IcpStats level = AlignPointToPlane(source, target, total.T_target_source, settings);
+    const IcpStats level = Align(source, target, total.T_target_source, settings);
     total.T_target_source = level.T_target_source;
     total.iterations += level.iterations;
     total.converged = level.converged;

@@ -5,6 +5,18 @@
 #include "global_registration.h"
 
 namespace arref {
+namespace {
+
+// arref-icp with its parameters changed by `change`: a variant of the default method.
+template <typename Change>
+Result<RegistrationOutput> WithArrefIcpParams(const MethodInput& in, Change change) {
+  RegistrationOptions options = in.options;
+  change(options.arref_icp);
+  return RegisterArrefIcp(MethodInput{in.model_base, in.scene_world, in.T_world_seed, options, in.scene_target,
+                                      in.model_expected, in.robot, in.voxel_m, in.scene_mesh_world});
+}
+
+}  // namespace
 
 const std::vector<MethodInfo>& Methods() {
   static const std::vector<MethodInfo> kMethods = {
@@ -16,14 +28,17 @@ const std::vector<MethodInfo>& Methods() {
        "arref-icp without its per-request refit among the objects mapped round the robot: faster, and a table near the "
        "robot pulls it a few mm",
        [](const MethodInput& in) {
-         RegistrationOptions options = in.options;
-         options.arref_icp.in_context = false;
-         return RegisterArrefIcp(MethodInput{in.model_base, in.scene_world, in.T_world_seed, options, in.scene_target,
-                                             in.model_expected, in.robot, in.voxel_m, in.scene_mesh_world});
+         return WithArrefIcpParams(in, [](ArrefIcpParams& p) { p.in_context = false; });
        },
        true, true},
       {Method::kArrefIcpExact, "arref-icp-exact",
        "arref-icp fitting the robot's exact surface (its visible parts), for comparison", RegisterArrefIcp, true},
+      {Method::kArrefIcpPoint, "arref-icp-point",
+       "arref-icp with point-to-point instead of point-to-plane residuals in every ICP, for comparison",
+       [](const MethodInput& in) {
+         return WithArrefIcpParams(in, [](ArrefIcpParams& p) { p.metric = IcpMetric::kPointToPoint; });
+       },
+       true, true},
       {Method::kPclIcp, "pcl-icp", "PCL point-to-point ICP from the seed (the paper's method)",
        [](const MethodInput& in) {
          return RegisterPclIcp(in.model_base, in.scene_world, in.T_world_seed, in.options.icp, false);

@@ -1,6 +1,7 @@
-// arref's ICP kernel: point-to-plane Gauss-Newton on SE(3) (or its gravity-aligned 4-DoF
-// subgroup) with a Geman-McClure kernel and normal-compatible correspondences, over plain
-// point arrays. Correspondence search and reduction run in parallel (oneTBB).
+// arref's ICP kernel: point-to-plane or point-to-point Gauss-Newton on SE(3) (or its
+// gravity-aligned 4-DoF subgroup) with a Geman-McClure kernel and normal-compatible
+// correspondences, over plain point arrays. Correspondence search and reduction run in
+// parallel (oneTBB).
 #pragma once
 
 #include <cstdint>
@@ -24,12 +25,21 @@ class TargetCloud {
   PointIndex index_;
 };
 
+// What a pair's residual measures.
+enum class IcpMetric {
+  kPointToPlane,  // n . (T p - q), Chen & Medioni 1992: slides along surfaces; arref-icp's
+  kPointToPoint,  // |T p - q|, Besl & McKay 1992: the paper's (and PCL's) ICP
+};
+
 struct IcpSettings {
+  IcpMetric metric = IcpMetric::kPointToPlane;
   double max_correspondence_m = 0.05;
   int max_iterations = 30;
   // Geman-McClure scale (Black & Rangarajan 1996): weight = (s^2 / (s^2 + r^2))^2.
   double kernel_scale_m = 0.01;
-  double min_normal_cos = 0.5;  // pairs whose normals differ by more than 60 degrees are no match
+  // Pairs whose normals differ by more than 60 degrees are no match (tested when the source
+  // has normals; the target always has them).
+  double min_normal_cos = 0.5;
   bool yaw_only = false;        // 4-DoF: x, y, z and yaw about gravity
   double converged_translation_m = 1e-4;  // a step this small ends the level
   double converged_rotation_rad = 1e-4;
@@ -48,10 +58,10 @@ struct IcpStats {
 };
 
 // Aligns source (points + normals, its own frame) to target, starting at T_target_source.
-IcpStats AlignPointToPlane(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
-                           const IcpSettings& settings);
+IcpStats Align(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
+               const IcpSettings& settings);
 
-// Runs AlignPointToPlane once per correspondence distance, coarse to fine.
+// Runs Align once per correspondence distance, coarse to fine.
 IcpStats AlignCoarseToFine(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
                            const std::vector<double>& distances_m, IcpSettings settings);
 

@@ -7,6 +7,7 @@
 #include <string>
 #include <vector>
 
+#include "arref/fast_icp.h"
 #include "arref/geometry.h"
 #include "arref/sampling.h"
 #include "arref/status.h"
@@ -53,6 +54,8 @@ struct ArrefIcpParams {
   double expected_voxel_m = 0.0;   // the headset mesh's voxel; 0: the cropped scene's median edge length
   bool select_walk = true;         // also try surfaces of one-sided walks round the robot (arref_icp.cpp)
   bool in_context = true;          // refit with the objects mapped round the robot fused in (arref_icp.cpp)
+  // Every ICP of the method: point-to-plane, or point-to-point for comparison (arref-icp-point).
+  IcpMetric metric = IcpMetric::kPointToPlane;
 };
 
 // Turns fit figures into a status (calibrated on simulated cells, see docs/engine.md). The
@@ -116,6 +119,7 @@ struct FpfhRansacParams {
 // One registry entry per value; the registry (methods.cpp) says which are available.
 enum class Method {
   kPclIcp, kPclIcpPlane, kPclGicp, kSuper4pcs, kPcl4pcs, kPclK4pcs, kFpfhRansac, kArrefIcp, kArrefIcpFast, kArrefIcpExact,
+  kArrefIcpPoint,
   kOpen3dIcp, kOpen3dIcpPlane,  // only when built with Open3D
 };
 
@@ -156,7 +160,6 @@ struct RegistrationOutput {
 };
 
 // What a method gets: model points in the robot base frame, scene points in world, the seed.
-class TargetCloud;  // fast_icp.h
 class RobotSide;    // pipeline.h
 
 struct MethodInput {

@@ -51,19 +51,23 @@ double Weight(double r_sq, double scale_sq, double* cost) {
 template <IcpMetric kMetric>
 void AddCorrespondence(Normal& eq, const Vec3f& p, const Vec3f& q, const Vec3f& n, double scale_sq) {
   const Eigen::Vector3d pd = p.cast<double>();
-  Vec6 J;
   if constexpr (kMetric == IcpMetric::kPointToPlane) {
     const double r = n.dot(p - q);
+    Vec6 J;
     J << n.cast<double>(), pd.cross(n.cast<double>());
     AddPair(eq, r, J, Weight(r * r, scale_sq, &eq.cost));
   } else {
+    // Stacked over x, y and z, J = [I, -[p']x]: J^T J and J^T e in closed form (the upper
+    // triangle is what BuildNormalEquations keeps).
     const Eigen::Vector3d e = (p - q).cast<double>();
     const double w = Weight(e.squaredNorm(), scale_sq, &eq.cost);
-    for (int a = 0; a < 3; ++a) {
-      const Eigen::Vector3d axis = Eigen::Vector3d::Unit(a);
-      J << axis, pd.cross(axis);
-      AddPair(eq, e(a), J, w);
-    }
+    Eigen::Matrix3d skew;
+    skew << 0, -pd.z(), pd.y(), pd.z(), 0, -pd.x(), -pd.y(), pd.x(), 0;
+    eq.H.topLeftCorner<3, 3>().diagonal().array() += w;
+    eq.H.topRightCorner<3, 3>() -= w * skew;
+    eq.H.bottomRightCorner<3, 3>() += w * (pd.squaredNorm() * Eigen::Matrix3d::Identity() - pd * pd.transpose());
+    eq.b.head<3>() += w * e;
+    eq.b.tail<3>() += w * pd.cross(e);
   }
   ++eq.count;
 }

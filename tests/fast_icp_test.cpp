@@ -9,28 +9,13 @@
 #include "arref/fast_icp.h"
 #include "arref/metrics.h"
 #include "arref/pipeline.h"
-#include "test_support.h"
+#include "robot_surface_scene.h"
 
 namespace arref {
 namespace {
 
-struct Scene {
-  PointCloud model_base;   // the robot's surface, base frame
-  PointCloud scene_world;  // other samples of the same surface, placed at T_world_base
-  Iso3 T_world_base;
-};
-
-Scene MakeScene() {
-  auto robot = RobotModel::Load(testing::BuiltinRobotUrdf());
-  EXPECT_TRUE(robot.ok()) << robot.status().ToString();
-  const JointValues joints = {{"joint_a2", -0.6}, {"joint_a3", 0.9}};
-  Scene c;
-  c.model_base = *SampleRobot(*robot, joints, 6000, 1);
-  c.scene_world = *SampleRobot(*robot, joints, 4000, 2);
-  c.T_world_base = MakeYawPose(1.2, -0.7, 0.3, 2.0);
-  c.scene_world.Transform(c.T_world_base);
-  return c;
-}
+using testing::MakeRobotSurfaceScene;
+using testing::RobotSurfaceScene;
 
 void AddNoise(PointCloud& cloud, float sigma_m, unsigned seed) {
   std::mt19937 rng(seed);
@@ -38,12 +23,12 @@ void AddNoise(PointCloud& cloud, float sigma_m, unsigned seed) {
   for (Vec3f& p : cloud.points) p += Vec3f(noise(rng), noise(rng), noise(rng));
 }
 
-double AddOf(const IcpStats& st, const Scene& c) {
+double AddOf(const IcpStats& st, const RobotSurfaceScene& c) {
   return ComparePoses(st.T_target_source, c.T_world_base, c.model_base.points).add_m;
 }
 
 // 2 cm and 4 degrees off about a tilted axis: a 6-DoF offset (over 3 cm ADD).
-Iso3 SixDofStart(const Scene& c) {
+Iso3 SixDofStart(const RobotSurfaceScene& c) {
   Iso3 offset = Iso3::Identity();
   offset.linear() = Eigen::AngleAxisd(4 * std::numbers::pi / 180, Vec3(0.3, -0.5, 0.8).normalized()).toRotationMatrix();
   offset.translation() = Vec3(0.012, -0.01, 0.012);
@@ -53,7 +38,7 @@ Iso3 SixDofStart(const Scene& c) {
 const std::vector<double> kLevels = {0.08, 0.04, 0.02, 0.012};
 
 TEST(FastIcp, BothMetricsRecoverASixDofOffset) {
-  const Scene c = MakeScene();
+  const RobotSurfaceScene c = MakeRobotSurfaceScene();
   const TargetCloud target(c.scene_world);
   const double start_add = ComparePoses(SixDofStart(c), c.T_world_base, c.model_base.points).add_m;
   for (IcpMetric metric : {IcpMetric::kPointToPlane, IcpMetric::kPointToPoint}) {
@@ -72,7 +57,7 @@ TEST(FastIcp, BothMetricsRecoverASixDofOffset) {
 }
 
 TEST(FastIcp, YawOnlyMovesXyzAndYawAlone) {
-  const Scene c = MakeScene();
+  const RobotSurfaceScene c = MakeRobotSurfaceScene();
   const TargetCloud target(c.scene_world);
   IcpSettings s;
   s.yaw_only = true;
@@ -91,7 +76,7 @@ TEST(FastIcp, YawOnlyMovesXyzAndYawAlone) {
 // A second layer within the correspondence distance: least squares averages the two, the
 // Geman-McClure kernel holds to the layer it starts on.
 TEST(FastIcp, RobustKernelIgnoresClutter) {
-  Scene c = MakeScene();
+  RobotSurfaceScene c = MakeRobotSurfaceScene();
   // A ghost of the whole surface 8 mm off along x: a second layer, as a badly tracked pass
   // of the headset leaves one.
   const std::size_t robot_points = c.scene_world.size();
@@ -115,7 +100,7 @@ TEST(FastIcp, RobustKernelIgnoresClutter) {
 // The reduction is deterministic (oneTBB's parallel_deterministic_reduce over fixed blocks):
 // one, two or eight threads give the same pose to the last bit.
 TEST(FastIcp, SameResultOnAnyNumberOfThreads) {
-  Scene c = MakeScene();
+  RobotSurfaceScene c = MakeRobotSurfaceScene();
   AddNoise(c.scene_world, 0.004f, 7);
   const TargetCloud target(c.scene_world);
   for (IcpMetric metric : {IcpMetric::kPointToPlane, IcpMetric::kPointToPoint}) {
@@ -135,7 +120,7 @@ TEST(FastIcp, SameResultOnAnyNumberOfThreads) {
 
 // Nothing within reach: the start is returned untouched, not converged.
 TEST(FastIcp, NoPairsKeepTheStart) {
-  const Scene c = MakeScene();
+  const RobotSurfaceScene c = MakeRobotSurfaceScene();
   const TargetCloud target(c.scene_world);
   const Iso3 far = MakeYawPose(20, 0, 0, 0) * c.T_world_base;
   for (IcpMetric metric : {IcpMetric::kPointToPlane, IcpMetric::kPointToPoint}) {
@@ -152,7 +137,7 @@ TEST(FastIcp, NoPairsKeepTheStart) {
 // scene, where the last iterations crawl: it must end the levels sooner and leave the fit as
 // close to the truth as running them out does.
 TEST(FastIcp, CostRatioStopsTheCrawlNotTheFit) {
-  Scene c = MakeScene();
+  RobotSurfaceScene c = MakeRobotSurfaceScene();
   AddNoise(c.scene_world, 0.004f, 5);  // a headset's few millimetres
   const TargetCloud target(c.scene_world);
   const Iso3 start = MakeYawPose(0.03, -0.02, 0.01, 0.05) * c.T_world_base;

@@ -10,33 +10,18 @@
 #include "arref/metrics.h"
 #include "arref/pipeline.h"
 #include "arref/registration.h"
-#include "test_support.h"
+#include "robot_surface_scene.h"
 
 namespace arref {
 namespace {
 
-struct Clean {
-  PointCloud model_base;
-  PointCloud scene_world;
-  Iso3 T_world_base;
-};
-
-Clean MakeClean() {
-  auto robot = RobotModel::Load(testing::BuiltinRobotUrdf());
-  EXPECT_TRUE(robot.ok()) << robot.status().ToString();
-  const JointValues joints = {{"joint_a2", -0.6}, {"joint_a3", 0.9}};
-  Clean c;
-  c.model_base = *SampleRobot(*robot, joints, 6000, 1);
-  c.scene_world = *SampleRobot(*robot, joints, 4000, 2);  // other points of the same surface
-  c.T_world_base = MakeYawPose(1.2, -0.7, 0.3, 2.0);
-  c.scene_world.Transform(c.T_world_base);
-  return c;
-}
+using testing::MakeRobotSurfaceScene;
+using testing::RobotSurfaceScene;
 
 class GlobalMethods : public ::testing::TestWithParam<const char*> {};
 
 TEST_P(GlobalMethods, FindTheRobotFarFromTheSeed) {
-  const Clean c = MakeClean();
+  const RobotSurfaceScene c = MakeRobotSurfaceScene();
   RegistrationOptions options;
   options.segmentation.enabled = false;  // nothing to segment: the scene is the robot
   auto method = ParseMethod(GetParam());
@@ -62,7 +47,7 @@ INSTANTIATE_TEST_SUITE_P(All, GlobalMethods, ::testing::Values("super4pcs", "fpf
 // against its base, which plane removal cannot cut away) must be reported, not registered.
 TEST(Segmentation, ReportsARobotTouchingAnotherObject) {
   spdlog::cfg::load_env_levels();
-  Clean c = MakeClean();
+  RobotSurfaceScene c = MakeRobotSurfaceScene();
   std::mt19937_64 rng(3);
   std::normal_distribution<double> gauss;
   // The ball's surface passes 1 cm behind the robot's rearmost point.
@@ -83,7 +68,7 @@ TEST(Segmentation, ReportsARobotTouchingAnotherObject) {
 }
 
 TEST(Super4pcs, RejectsBadParameters) {
-  const Clean c = MakeClean();
+  const RobotSurfaceScene c = MakeRobotSurfaceScene();
   RegistrationOptions options;
   options.segmentation.enabled = false;
   options.super4pcs.overlap = 0;

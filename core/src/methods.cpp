@@ -23,18 +23,20 @@ const std::vector<MethodInfo>& Methods() {
       {Method::kArrefIcp, "arref-icp",
        "arref's default: 4-DoF yaw/height/position search around the seed, point-to-plane ICP of the robot as the "
        "headset would mesh it",
-       RegisterArrefIcp, true, true},
+       RegisterArrefIcp, true, true, true},
       {Method::kArrefIcpFast, "arref-icp-fast",
        "arref-icp without its per-request refit among the objects mapped round the robot: faster, and a table near the "
        "robot pulls it a few mm",
        [](const MethodInput& in) {
          return WithArrefIcpParams(in, [](ArrefIcpParams& p) { p.in_context = false; });
        },
-       true, true},
+       true, true, true},
       {Method::kArrefIcpExact, "arref-icp-exact",
-       "arref-icp fitting the robot's exact surface (its visible parts), for comparison", RegisterArrefIcp, true},
+       "arref-icp fitting the robot's exact surface (its visible parts), for comparison", RegisterArrefIcp, true, false,
+       true},
       {Method::kArrefIcpPoint, "arref-icp-point",
-       "arref-icp with point-to-point instead of point-to-plane residuals in every ICP, for comparison",
+       "arref-icp with point-to-point instead of point-to-plane residuals in every ICP, for comparison (never OK: "
+       "the status was calibrated on point-to-plane fits, and one of its fits 21 mm off passed it)",
        [](const MethodInput& in) {
          return WithArrefIcpParams(in, [](ArrefIcpParams& p) { p.metric = IcpMetric::kPointToPoint; });
        },

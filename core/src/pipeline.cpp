@@ -47,12 +47,14 @@ Status CheckOptions(const RegistrationOptions& o) {
   return Status::Ok();
 }
 
-void AssignStatus(const ConfidenceThresholds& t, RegistrationReport* r) {
+void AssignStatus(const ConfidenceThresholds& t, bool calibrated, RegistrationReport* r) {
   std::string why;
   if (r->inlier_fraction < t.ok_min_inlier_fraction)
     why = fmt::format("only {:.0f} % of visible model points lie on the scene", r->inlier_fraction * 100);
   else if (r->margin < 0)  // measured: PCL ICP 2-4 cm off keeps as many inliers as a good fit
     why = "the method does not compare alternative poses, so a nearby wrong fit cannot be ruled out";
+  else if (!calibrated)  // measured: arref-icp-point 21 mm off passed the thresholds below
+    why = "the confidence thresholds were not calibrated on this method's fits";
   else if (r->margin < t.ok_min_margin)
     why = fmt::format("ambiguous: another pose fits almost as well (margin {:.3f})", r->margin);
   r->status_reason = why;
@@ -196,7 +198,7 @@ Result<RegistrationReport> Register(const PointCloud& model_base, const RobotSid
   report.inlier_fraction = visible_only ? fit.inlier_fraction
                                         : MeasureFit(visible, report.T_world_base, scene_index,
                                                      options.inlier_threshold_m).inlier_fraction;
-  AssignStatus(options.confidence, &report);
+  AssignStatus(options.confidence, MethodInfoOf(options.method).status_calibrated, &report);
   clock.Stop();
   if (progress) progress("done", 1.0);
   return report;

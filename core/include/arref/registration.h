@@ -184,6 +184,9 @@ struct MethodInfo {
   MethodFn run;
   bool visible_model_only = false;  // fits (and so is measured on) the visible model points only
   bool uses_expected_surface = false;  // fits MethodInput::model_expected when given
+  // ConfidenceThresholds were calibrated on this method's fits (docs/engine.md); no other
+  // method's result is ever OK.
+  bool status_calibrated = false;
 };
 const std::vector<MethodInfo>& Methods();
 const MethodInfo& MethodInfoOf(Method method);

@@ -130,9 +130,9 @@ TEST_F(CliTest, DefaultMethodFitsTheExpectedHeadsetSurface) {
   }
 }
 
-// The status thresholds were calibrated on arref-icp's point-to-plane fits; a comparison
-// method they were not calibrated on fits but never says OK (one of arref-icp-point's fits,
-// 21 mm off, passed them: docs/engine.md, "GICP and point-to-point").
+// The status thresholds were calibrated on arref-icp's point-to-plane fits. arref-icp-point
+// was not part of that calibration: it still fits, but never says OK (one of its fits, 21 mm
+// off, passed the thresholds: docs/engine.md, "GICP and point-to-point").
 TEST_F(CliTest, UncalibratedMethodIsNeverOk) {
   const std::string base = Simulate(42, "--seeds 3");
   for (int seed = 0; seed < 3; ++seed) {

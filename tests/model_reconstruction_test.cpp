@@ -6,6 +6,9 @@
 
 #include "arref/model_reconstruction.h"
 #include "arref/pipeline.h"
+#include "arref/raycaster.h"
+#include "arref/sampling.h"
+#include "arref/tsdf.h"
 #include "test_support.h"
 
 namespace arref {
@@ -194,6 +197,51 @@ TEST(ExpectedSurface, ObjectsMappedRoundTheRobotHideWhatTheyHid) {
   const auto top = std::count_if(in_context->points.begin(), in_context->points.end(),
                                  [](const Vec3f& p) { return p.z() > 0.8 - kVoxel; });
   EXPECT_GT(top, 300);
+}
+
+// The refit traces only the pixels NearPixels marks; the claim is that no other pixel changes a
+// voxel of a volume kept to the band round the robot. Fused with the other pixels blanked, the
+// mesh must be the same, vertex for vertex.
+TEST(ExpectedSurface, PixelsOffTheBandChangeNothing) {
+  TriangleMesh scene = Box(0.4f, 0.4f, 0.8f);
+  scene.Append(TableInFront());
+  TriangleMesh far_wall = Box(0.1f, 4.0f, 2.0f);  // behind the robot, seen round it
+  far_wall.Transform(Iso3(Eigen::Translation3d(-2.5, 0, 0)));
+  scene.Append(far_wall);
+  auto caster = RayCaster::Create(scene);
+  ASSERT_TRUE(caster.ok()) << caster.status().ToString();
+  const std::vector<Vec3f> robot = SampleSurface(Box(0.4f, 0.4f, 0.8f), 20000, 1).points;
+  TsdfOptions o;
+  o.voxel_m = kVoxel, o.truncation_m = 3 * kVoxel, o.crop_center = Vec3(0, 0, 0.4), o.crop_radius_m = 2.0;
+  o.near_points = &robot, o.near_margin_m = o.truncation_m + 2 * kVoxel, o.single_precision = true;
+  TsdfVolume all(o), masked(o);
+  const PinholeCamera camera = PinholeCamera::FromFov(90, 80, 70);
+  std::size_t skipped = 0, traced = 0;
+  for (int eye = 0; eye < 8; ++eye) {
+    const double azimuth = -0.8 + 0.2 * eye;
+    const Iso3 T_scene_camera = LookAt(Vec3(1.9 * std::cos(azimuth), 1.9 * std::sin(azimuth), 1.6), Vec3(0, 0, 0.4));
+    std::vector<float> incidence;
+    const RangeImage range = caster->Render(camera, T_scene_camera, 8.0, &incidence);
+    const PixelMask mask = masked.NearPixels(camera, T_scene_camera);
+    std::vector<float> blank_incidence = incidence;
+    const RangeImage blanked = caster->Render(camera, T_scene_camera, 8.0, &blank_incidence, nullptr, &mask);
+    for (std::size_t i = 0; i < mask.size(); ++i) {
+      (mask[i] ? traced : skipped) += range[i] > 0;
+      if (mask[i]) {
+        ASSERT_EQ(blanked[i], range[i]) << "a traced pixel renders as without a mask";
+      }
+    }
+    ASSERT_TRUE(all.Integrate(camera, T_scene_camera, range, incidence).ok());
+    ASSERT_TRUE(masked.Integrate(camera, T_scene_camera, blanked, blank_incidence).ok());
+  }
+  EXPECT_GT(skipped, traced / 10) << "the far wall and the floor beside the robot are off the band";
+  EXPECT_GT(traced, 1000u);
+  EXPECT_EQ(masked.block_count(), all.block_count());
+  const TriangleMesh a = all.ExtractMesh(), b = masked.ExtractMesh();
+  EXPECT_GT(a.triangles.size(), 500u);
+  ASSERT_EQ(a.vertices.size(), b.vertices.size());
+  for (std::size_t i = 0; i < a.vertices.size(); ++i) ASSERT_EQ(a.vertices[i], b.vertices[i]) << "vertex " << i;
+  EXPECT_EQ(a.triangles, b.triangles);
 }
 
 TEST(ExpectedSurface, MedianEdgeLengthIsTheGridStep) {

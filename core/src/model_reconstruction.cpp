@@ -167,13 +167,15 @@ Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const Rig& rig, const std::vecto
       ARREF_RETURN_IF_ERROR(volume.Integrate(rig.camera, T_base_camera, view.range, view.incidence, view.band));
       continue;
     }
+    // Pixels whose rays miss the band change no voxel of it: they are not traced (exact).
+    const PixelMask traced = volume.NearPixels(rig.camera, T_base_camera);
     View view;
     if (robot_views.empty()) {  // the caster holds robot and objects
-      view.range = context->Render(rig.camera, T_base_camera, rig.max_range, &view.incidence);
+      view.range = context->Render(rig.camera, T_base_camera, rig.max_range, &view.incidence, nullptr, &traced);
     } else {
       view = *robot_views[a];
       std::vector<float> context_incidence;
-      NearerOf(context->Render(rig.camera, T_base_camera, rig.max_range, &context_incidence, &view.range),
+      NearerOf(context->Render(rig.camera, T_base_camera, rig.max_range, &context_incidence, &view.range, &traced),
                context_incidence, &view.range, &view.incidence);
     }
     ARREF_RETURN_IF_ERROR(volume.Integrate(rig.camera, T_base_camera, view.range, view.incidence));

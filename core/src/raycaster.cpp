@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <numbers>
 #include <string>
 
@@ -30,6 +31,24 @@ PinholeCamera PinholeCamera::FromFov(int width, int height, double fov_horizonta
   c.height = height;
   c.focal_px = 0.5 * width / std::tan(0.5 * fov_horizontal_deg * std::numbers::pi / 180.0);
   return c;
+}
+
+void MarkBox(const PinholeCamera& camera, const Iso3& T_camera_scene, const Aabb& box, PixelMask* mask) {
+  mask->resize(static_cast<std::size_t>(camera.width) * camera.height, 0);
+  if (!box.valid()) return;
+  Eigen::Vector2d lo = Eigen::Vector2d::Constant(std::numeric_limits<double>::max()), hi = -lo;
+  for (int c = 0; c < 8; ++c) {
+    const Vec3 corner((c & 1 ? box.max : box.min).x(), (c & 2 ? box.max : box.min).y(), (c & 4 ? box.max : box.min).z());
+    const Vec3 p = T_camera_scene * corner.cast<double>();
+    if (p.z() <= 1e-6) return std::fill(mask->begin(), mask->end(), 1);
+    const Eigen::Vector2d uv = camera.Project(p);
+    lo = lo.cwiseMin(uv), hi = hi.cwiseMax(uv);
+  }
+  // A point inside the box projects within its corners' bounds, onto the pixel at their floor.
+  const auto clamp = [](double x, int n) { return static_cast<int>(std::clamp(std::floor(x), 0.0, double(n))); };
+  const int u0 = clamp(lo.x(), camera.width), u1 = clamp(hi.x() + 1, camera.width);
+  for (int v = clamp(lo.y(), camera.height); v < clamp(hi.y() + 1, camera.height); ++v)
+    std::fill_n(mask->begin() + static_cast<std::ptrdiff_t>(v) * camera.width + u0, std::max(0, u1 - u0), 1);
 }
 
 struct RayCaster::Impl {
@@ -74,7 +93,8 @@ Result<RayCaster> RayCaster::Create(const TriangleMesh& mesh, Build build) {
 }
 
 RangeImage RayCaster::Render(const PinholeCamera& camera, const Iso3& T_scene_camera, double max_range_m,
-                             std::vector<float>* incidence, const RangeImage* nearer_than) const {
+                             std::vector<float>* incidence, const RangeImage* nearer_than,
+                             const PixelMask* traced) const {
   RangeImage range(static_cast<std::size_t>(camera.width) * camera.height, 0.0f);
   if (incidence) incidence->assign(range.size(), 0.0f);
   const Eigen::Matrix3d R = T_scene_camera.linear();
@@ -83,6 +103,7 @@ RangeImage RayCaster::Render(const PinholeCamera& camera, const Iso3& T_scene_ca
     RTCIntersectContext context;
     rtcInitIntersectContext(&context);
     for (int u = 0; u < camera.width; ++u) {
+      if (traced && !(*traced)[static_cast<std::size_t>(v) * camera.width + u]) continue;
       const Vec3 dir = R * camera.RayDirection(u, v);
       RTCRayHit rh{};
       rh.ray.org_x = static_cast<float>(origin.x());

@@ -78,6 +78,25 @@ void TsdfVolume::MarkNearBlocks(const std::vector<Vec3f>& points) {
   for (const Eigen::Vector3i& b : near) near_.slot[near_.Offset(b)] = Near::kFree;
 }
 
+// Block b holds the points that BlockOf rounds into it, [(bB - 0.5) v, (bB + B - 0.5) v) per axis,
+// its voxel centres among them: a pixel whose ray misses every such box of a near block can
+// neither allocate nor update a voxel.
+PixelMask TsdfVolume::NearPixels(const PinholeCamera& camera, const Iso3& T_volume_camera) const {
+  PixelMask mask(static_cast<std::size_t>(camera.width) * camera.height, near_only_ ? 0 : 1);
+  if (!near_only_) return mask;
+  const Iso3 T_camera_volume = T_volume_camera.inverse();
+  const float v = static_cast<float>(options_.voxel_m);
+  for (int z = near_.lo.z(); z <= near_.hi.z(); ++z)
+    for (int y = near_.lo.y(); y <= near_.hi.y(); ++y)
+      for (int x = near_.lo.x(); x <= near_.hi.x(); ++x) {
+        const Eigen::Vector3i b(x, y, z);
+        if (near_.slot[near_.Offset(b)] == Near::kFar) continue;
+        const Vec3f lo = (b.cast<float>() * B - Vec3f::Constant(0.5f)) * v;
+        MarkBox(camera, T_camera_volume, Aabb{lo, lo + Vec3f::Constant(B * v)}, &mask);
+      }
+  return mask;
+}
+
 std::ptrdiff_t TsdfVolume::NearGrid::Offset(const Eigen::Vector3i& b) const {
   if (slot.empty() || (b.array() < lo.array()).any() || (b.array() > hi.array()).any()) return -1;
   const Eigen::Vector3i d = hi - lo + Eigen::Vector3i::Ones(), r = b - lo;

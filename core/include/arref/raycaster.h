@@ -1,6 +1,7 @@
 // Depth images of a triangle scene, ray cast with Embree (kept out of every other header).
 #pragma once
 
+#include <cstdint>
 #include <memory>
 #include <vector>
 
@@ -47,6 +48,12 @@ Iso3 LookAt(const Vec3& eye, const Vec3& target);
 // Range along each pixel's ray (row-major), 0 where nothing is hit within max_range.
 using RangeImage = std::vector<float>;
 
+// Which pixels of an image to trace (row-major, non-zero: traced).
+using PixelMask = std::vector<std::uint8_t>;
+// Marks the pixels whose rays can pass through a box (scene frame): the bounds of its corners'
+// projections. Every pixel when part of the box lies behind the camera.
+void MarkBox(const PinholeCamera& camera, const Iso3& T_camera_scene, const Aabb& box, PixelMask* mask);
+
 class RayCaster {
  public:
   // How Embree builds its BVH: kForTracing (its default) for scenes rendered from many views,
@@ -63,9 +70,11 @@ class RayCaster {
   // With `incidence`, also |cos| of the angle between each pixel's ray and the surface it hits
   // (0 where nothing is hit). With `nearer_than` (an image of the same camera), a pixel is hit
   // only nearer than that image's range where it has one: tracing stops there, which is what
-  // makes overlaying one scene on another's rendering cheap.
+  // makes overlaying one scene on another's rendering cheap. With `traced`, only the pixels it
+  // marks are traced; the others stay 0.
   RangeImage Render(const PinholeCamera& camera, const Iso3& T_scene_camera, double max_range_m,
-                    std::vector<float>* incidence = nullptr, const RangeImage* nearer_than = nullptr) const;
+                    std::vector<float>* incidence = nullptr, const RangeImage* nearer_than = nullptr,
+                    const PixelMask* traced = nullptr) const;
 
  private:
   struct Impl;

@@ -62,6 +62,9 @@ class TsdfVolume {
   TriangleMesh ExtractMesh() const;
 
   std::size_t block_count() const { return blocks_.size(); }
+  // The pixels of an image from T_volume_camera whose rays pass a block that near_points let
+  // the volume hold: no other pixel changes a voxel. Every pixel without near_points.
+  PixelMask NearPixels(const PinholeCamera& camera, const Iso3& T_volume_camera) const;
 
  struct Voxel {
     float d = 0.0f;  // truncated signed distance / truncation: +1 free, < 0 behind the surface

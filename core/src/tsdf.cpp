@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <functional>
 #include <string>
 #include <unordered_set>
 
@@ -82,15 +83,20 @@ void TsdfVolume::MarkNearBlocks(const std::vector<Vec3f>& points) {
 // its voxel centres among them: a pixel whose ray misses every such box of a near block can
 // neither allocate nor update a voxel.
 PixelMask TsdfVolume::NearPixels(const PinholeCamera& camera, const Iso3& T_volume_camera) const {
-  PixelMask mask(static_cast<std::size_t>(camera.width) * camera.height, near_only_ ? 0 : 1);
-  if (!near_only_) return mask;
+  if (!near_only_) return PixelMask(static_cast<std::size_t>(camera.width) * camera.height, 1);
+  return PixelsOfBlocks(camera, T_volume_camera, [](Near slot) { return slot != Near::kFar; });
+}
+
+PixelMask TsdfVolume::PixelsOfBlocks(const PinholeCamera& camera, const Iso3& T_volume_camera,
+                                     const std::function<bool(Near)>& counts) const {
+  PixelMask mask(static_cast<std::size_t>(camera.width) * camera.height, 0);
   const Iso3 T_camera_volume = T_volume_camera.inverse();
   const float v = static_cast<float>(options_.voxel_m);
   for (int z = near_.lo.z(); z <= near_.hi.z(); ++z)
     for (int y = near_.lo.y(); y <= near_.hi.y(); ++y)
       for (int x = near_.lo.x(); x <= near_.hi.x(); ++x) {
         const Eigen::Vector3i b(x, y, z);
-        if (near_.slot[near_.Offset(b)] == Near::kFar) continue;
+        if (!counts(near_.slot[near_.Offset(b)])) continue;
         const Vec3f lo = (b.cast<float>() * B - Vec3f::Constant(0.5f)) * v;
         MarkBox(camera, T_camera_volume, Aabb{lo, lo + Vec3f::Constant(B * v)}, &mask);
       }
@@ -146,11 +152,17 @@ std::vector<Eigen::Vector3i> TsdfVolume::BandBlocks(const TsdfOptions& options, 
   const double step = std::min(0.5 * block_m, trunc);
   const double keep_radius = options.crop_radius_m + 0.87 * block_m;
   std::vector<std::vector<Eigen::Vector3i>> rows(camera.height);
+  // Kept to the band round near_points, only rays through a block not yet allocated can add
+  // one: after the first views few are left, and most pixels need no steps (exact).
+  PixelMask adding;
+  if (allocating && allocating->near_only_)
+    adding = allocating->PixelsOfBlocks(camera, T_volume_camera, [](Near slot) { return slot == Near::kFree; });
   tbb::parallel_for(0, camera.height, [&](int v) {
     Key last = ~Key{0};
     for (int u = 0; u < camera.width; ++u) {
-      const float r = range[static_cast<std::size_t>(v) * camera.width + u];
-      if (r <= 0) continue;
+      const std::size_t pixel = static_cast<std::size_t>(v) * camera.width + u;
+      const float r = range[pixel];
+      if (r <= 0 || (!adding.empty() && !adding[pixel])) continue;
       const Vec3 dir = T_volume_camera.linear() * camera.RayDirection(u, v);
       for (double t = r - trunc; t <= r + trunc + 1e-9; t += step) {
         const Vec3 p = T_volume_camera.translation() + t * dir;

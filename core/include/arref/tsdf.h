@@ -6,6 +6,7 @@
 #include <cstddef>
 #include <cstdint>
 #include <deque>
+#include <functional>
 #include <unordered_map>
 #include <vector>
 
@@ -85,6 +86,11 @@ class TsdfVolume {
   void MarkNearBlocks(const std::vector<Vec3f>& points);
   Status Allocate(const std::vector<Eigen::Vector3i>& band);
   bool WouldAllocate(const Eigen::Vector3i& block) const;
+  // Of the blocks near options_.near_points: far, near and not yet allocated, allocated.
+  enum class Near : std::uint8_t { kFar, kFree, kAllocated };
+  // The pixels whose rays pass a near block that `counts`.
+  PixelMask PixelsOfBlocks(const PinholeCamera& camera, const Iso3& T_volume_camera,
+                           const std::function<bool(Near)>& counts) const;
   template <class Scalar>
   void UpdateVoxels(Block& block, const PinholeCamera& camera, const Eigen::Matrix<Scalar, 3, 1>& origin,
                     const Eigen::Matrix<Scalar, 3, 3>& step, const RangeImage& range,
@@ -108,9 +114,7 @@ class TsdfVolume {
   std::deque<Block> blocks_;
   std::unordered_map<Key, int> index_;
   bool near_only_ = false;
-  // The blocks near options_.near_points, if given, over their bounds [lo, hi]: which are far,
-  // which near and not yet allocated, which allocated.
-  enum class Near : std::uint8_t { kFar, kFree, kAllocated };
+  // The blocks near options_.near_points, if given, over their bounds [lo, hi], each Near.
   struct NearGrid {
     Eigen::Vector3i lo = Eigen::Vector3i::Zero(), hi = Eigen::Vector3i::Zero();
     std::vector<Near> slot;

@@ -5,7 +5,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <functional>
 #include <string>
 #include <unordered_set>
 
@@ -84,11 +83,11 @@ void TsdfVolume::MarkNearBlocks(const std::vector<Vec3f>& points) {
 // neither allocate nor update a voxel.
 PixelMask TsdfVolume::NearPixels(const PinholeCamera& camera, const Iso3& T_volume_camera) const {
   if (!near_only_) return PixelMask(static_cast<std::size_t>(camera.width) * camera.height, 1);
-  return PixelsOfBlocks(camera, T_volume_camera, [](Near slot) { return slot != Near::kFar; });
+  return PixelsOfBlocks(camera, T_volume_camera, false);
 }
 
 PixelMask TsdfVolume::PixelsOfBlocks(const PinholeCamera& camera, const Iso3& T_volume_camera,
-                                     const std::function<bool(Near)>& counts) const {
+                                     bool free_only) const {
   PixelMask mask(static_cast<std::size_t>(camera.width) * camera.height, 0);
   const Iso3 T_camera_volume = T_volume_camera.inverse();
   const float v = static_cast<float>(options_.voxel_m);
@@ -96,7 +95,8 @@ PixelMask TsdfVolume::PixelsOfBlocks(const PinholeCamera& camera, const Iso3& T_
     for (int y = near_.lo.y(); y <= near_.hi.y(); ++y)
       for (int x = near_.lo.x(); x <= near_.hi.x(); ++x) {
         const Eigen::Vector3i b(x, y, z);
-        if (!counts(near_.slot[near_.Offset(b)])) continue;
+        const Near slot = near_.slot[near_.Offset(b)];
+        if (slot == Near::kFar || (free_only && slot != Near::kFree)) continue;
         const Vec3f lo = (b.cast<float>() * B - Vec3f::Constant(0.5f)) * v;
         MarkBox(camera, T_camera_volume, Aabb{lo, lo + Vec3f::Constant(B * v)}, &mask);
       }
@@ -156,7 +156,7 @@ std::vector<Eigen::Vector3i> TsdfVolume::BandBlocks(const TsdfOptions& options, 
   // one: after the first views few are left, and most pixels need no steps (exact).
   PixelMask adding;
   if (allocating && allocating->near_only_)
-    adding = allocating->PixelsOfBlocks(camera, T_volume_camera, [](Near slot) { return slot == Near::kFree; });
+    adding = allocating->PixelsOfBlocks(camera, T_volume_camera, true);
   tbb::parallel_for(0, camera.height, [&](int v) {
     Key last = ~Key{0};
     for (int u = 0; u < camera.width; ++u) {

@@ -6,7 +6,6 @@
 #include <cstddef>
 #include <cstdint>
 #include <deque>
-#include <functional>
 #include <unordered_map>
 #include <vector>
 
@@ -88,9 +87,8 @@ class TsdfVolume {
   bool WouldAllocate(const Eigen::Vector3i& block) const;
   // Of the blocks near options_.near_points: far, near and not yet allocated, allocated.
   enum class Near : std::uint8_t { kFar, kFree, kAllocated };
-  // The pixels whose rays pass a near block that `counts`.
-  PixelMask PixelsOfBlocks(const PinholeCamera& camera, const Iso3& T_volume_camera,
-                           const std::function<bool(Near)>& counts) const;
+  // The pixels whose rays pass a near block: any, or only those not yet allocated.
+  PixelMask PixelsOfBlocks(const PinholeCamera& camera, const Iso3& T_volume_camera, bool free_only) const;
   template <class Scalar>
   void UpdateVoxels(Block& block, const PinholeCamera& camera, const Eigen::Matrix<Scalar, 3, 1>& origin,
                     const Eigen::Matrix<Scalar, 3, 3>& step, const RangeImage& range,

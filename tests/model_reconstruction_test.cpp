@@ -251,6 +251,24 @@ TEST(ExpectedSurface, PixelsOffTheBandChangeNothing) {
   }
 }
 
+TEST(ExpectedSurface, NoNearPointsLeaveNoPixelAndNoBlock) {
+  const std::vector<Vec3f> none;
+  TsdfOptions o;
+  o.voxel_m = kVoxel, o.near_points = &none, o.near_margin_m = 0.1;
+  TsdfVolume volume(o);
+  const PinholeCamera camera = PinholeCamera::FromFov(40, 30, 70);
+  const Iso3 T_volume_camera = LookAt(Vec3(2, 0, 1), Vec3(0, 0, 0.4));
+  const PixelMask mask = volume.NearPixels(camera, T_volume_camera);
+  ASSERT_EQ(mask.size(), 40u * 30u);
+  EXPECT_EQ(std::count(mask.begin(), mask.end(), 0), 40 * 30);
+  auto caster = RayCaster::Create(Box(0.4f, 0.4f, 0.8f));
+  ASSERT_TRUE(caster.ok());
+  std::vector<float> incidence;
+  const RangeImage range = caster->Render(camera, T_volume_camera, 8.0, &incidence);
+  ASSERT_TRUE(volume.Integrate(camera, T_volume_camera, range, incidence).ok());
+  EXPECT_EQ(volume.block_count(), 0u);
+}
+
 TEST(ExpectedSurface, MedianEdgeLengthIsTheGridStep) {
   TriangleMesh grid;  // 10 x 10 squares of 1 cm, two triangles each
   for (int y = 0; y <= 10; ++y)

@@ -89,6 +89,7 @@ PixelMask TsdfVolume::NearPixels(const PinholeCamera& camera, const Iso3& T_volu
 PixelMask TsdfVolume::PixelsOfBlocks(const PinholeCamera& camera, const Iso3& T_volume_camera,
                                      bool free_only) const {
   PixelMask mask(static_cast<std::size_t>(camera.width) * camera.height, 0);
+  if (near_.slot.empty()) return mask;  // near_points were given but empty: no block may be held
   const Iso3 T_camera_volume = T_volume_camera.inverse();
   const float v = static_cast<float>(options_.voxel_m);
   for (int z = near_.lo.z(); z <= near_.hi.z(); ++z)
@@ -153,7 +154,8 @@ std::vector<Eigen::Vector3i> TsdfVolume::BandBlocks(const TsdfOptions& options, 
   const double keep_radius = options.crop_radius_m + 0.87 * block_m;
   std::vector<std::vector<Eigen::Vector3i>> rows(camera.height);
   // Kept to the band round near_points, only rays through a block not yet allocated can add
-  // one: after the first views few are left, and most pixels need no steps (exact).
+  // one; the other pixels need no steps (exact). The refit's robot still leaves about 70 % of
+  // this step's time: unseen blocks behind it lie on its own pixels' rays.
   PixelMask adding;
   if (allocating && allocating->near_only_)
     adding = allocating->PixelsOfBlocks(camera, T_volume_camera, true);

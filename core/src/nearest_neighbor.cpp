@@ -15,9 +15,7 @@ struct PointIndex::Impl {
   using Tree = nanoflann::KDTreeSingleIndexAdaptor<nanoflann::L2_Simple_Adaptor<float, Adaptor>, Adaptor, 3, std::uint32_t>;
 
   explicit Impl(std::vector<Vec3f> p)
-      : points(std::move(p)), adaptor{&points}, tree(3, adaptor, nanoflann::KDTreeSingleIndexAdaptorParams(16)) {
-    tree.buildIndex();
-  }
+      : points(std::move(p)), adaptor{&points}, tree(3, adaptor, nanoflann::KDTreeSingleIndexAdaptorParams(16)) {}  // builds it
   std::vector<Vec3f> points;
   Adaptor adaptor;
   Tree tree;

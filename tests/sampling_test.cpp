@@ -3,6 +3,8 @@
 #include <cmath>
 #include <random>
 
+#include <tbb/global_control.h>
+
 #include "arref/robot_model.h"
 #include "arref/sampling.h"
 #include "test_support.h"
@@ -46,6 +48,31 @@ TEST(Sampling, DeterministicForASeed) {
   EXPECT_EQ(a.points, b.points);
   EXPECT_NE(a.points, c.points);
   EXPECT_TRUE(SampleSurface(TriangleMesh{}, 100, 1).empty());
+}
+
+// Areas and points are computed in parallel; the draws are not: one thread or many, a seed
+// gives the same cloud (the bench's cells and every request's scene samples rest on it).
+TEST(Sampling, SameCloudOnAnyNumberOfThreads) {
+  TriangleMesh mesh;  // a wavy 1 x 1 m sheet of 20,000 triangles of unequal areas
+  const int n = 100;
+  for (int i = 0; i <= n; ++i)
+    for (int j = 0; j <= n; ++j)
+      mesh.vertices.emplace_back(i / float(n), j / float(n), 0.05f * std::sin(0.3f * i) * std::cos(0.2f * j));
+  for (std::uint32_t i = 0; i < n; ++i)
+    for (std::uint32_t j = 0; j < n; ++j) {
+      const std::uint32_t a = i * (n + 1) + j, b = a + n + 1;
+      mesh.triangles.push_back({a, b, b + 1});
+      mesh.triangles.push_back({a, b + 1, a + 1});
+    }
+  ASSERT_GT(mesh.triangles.size(), 3 * 4096u) << "the area loop must split into several ranges";
+  const PointCloud parallel = SampleSurface(mesh, 30000, 7);
+  PointCloud serial;
+  {
+    tbb::global_control one(tbb::global_control::max_allowed_parallelism, 1);
+    serial = SampleSurface(mesh, 30000, 7);
+  }
+  EXPECT_EQ(parallel.points, serial.points);
+  EXPECT_EQ(parallel.normals, serial.normals);
 }
 
 TEST(Sampling, RobotSampleLiesOnItsSurface) {

@@ -6,54 +6,66 @@
 #include <tuple>
 #include <unordered_map>
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 namespace arref {
 
 // Area-weighted triangle choice by binary search in the cumulative area, then a uniform point
 // in the triangle by the square-root parameterisation (Osada et al., "Shape distributions",
 // ACM TOG 2002, eq. 1): p = (1-sqrt(r1)) a + sqrt(r1)(1-r2) b + sqrt(r1) r2 c.
+// The areas and the points are computed in parallel; the running sum and the random draws stay
+// in one sequence, so a seed gives the same cloud bit for bit on any number of threads.
 PointCloud SampleSurface(const TriangleMesh& mesh, std::size_t n, std::uint64_t seed) {
   PointCloud cloud;
   if (mesh.triangles.empty() || n == 0) return cloud;
-  std::vector<double> cumulative(mesh.triangles.size());
+  std::vector<double> cumulative(mesh.triangles.size());  // each triangle's area, then their running sum
   std::vector<Vec3f> normals(mesh.triangles.size());
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, mesh.triangles.size(), 4096), [&](const auto& r) {
+    for (std::size_t i = r.begin(); i < r.end(); ++i) {
+      const auto& t = mesh.triangles[i];
+      const Vec3f cross = (mesh.vertices[t[1]] - mesh.vertices[t[0]]).cross(mesh.vertices[t[2]] - mesh.vertices[t[0]]);
+      const float norm = cross.norm();
+      cumulative[i] = 0.5 * norm;
+      normals[i] = norm > 0 ? Vec3f(cross / norm) : Vec3f::UnitZ();
+    }
+  });
   double total = 0.0;
-  for (std::size_t i = 0; i < mesh.triangles.size(); ++i) {
-    const auto& t = mesh.triangles[i];
-    const Vec3f cross = (mesh.vertices[t[1]] - mesh.vertices[t[0]]).cross(mesh.vertices[t[2]] - mesh.vertices[t[0]]);
-    const float norm = cross.norm();
-    total += 0.5 * norm;
-    cumulative[i] = total;
-    normals[i] = norm > 0 ? Vec3f(cross / norm) : Vec3f::UnitZ();
-  }
+  for (double& c : cumulative) c = total += c;
   if (total <= 0.0) return cloud;
+  // Per point: the triangle pick, sqrt(r1) and r2, drawn in that order.
   std::mt19937_64 rng(seed);
   std::uniform_real_distribution<double> uniform(0.0, 1.0);
-  cloud.points.reserve(n);
-  cloud.normals.reserve(n);
-  for (std::size_t k = 0; k < n; ++k) {
-    const double pick = uniform(rng) * total;
-    const auto i = static_cast<std::size_t>(std::min<std::ptrdiff_t>(
-        std::upper_bound(cumulative.begin(), cumulative.end(), pick) - cumulative.begin(),
-        static_cast<std::ptrdiff_t>(cumulative.size()) - 1));
-    const auto& t = mesh.triangles[i];
-    const float s = static_cast<float>(std::sqrt(uniform(rng)));
-    const float r2 = static_cast<float>(uniform(rng));
-    cloud.points.push_back((1 - s) * mesh.vertices[t[0]] + s * (1 - r2) * mesh.vertices[t[1]] +
-                           s * r2 * mesh.vertices[t[2]]);
-    cloud.normals.push_back(normals[i]);
-  }
+  std::vector<double> draws(3 * n);
+  for (double& d : draws) d = uniform(rng);
+  cloud.points.resize(n);
+  cloud.normals.resize(n);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 1024), [&](const auto& r) {
+    for (std::size_t k = r.begin(); k < r.end(); ++k) {
+      const double pick = draws[3 * k] * total;
+      const auto i = static_cast<std::size_t>(std::min<std::ptrdiff_t>(
+          std::upper_bound(cumulative.begin(), cumulative.end(), pick) - cumulative.begin(),
+          static_cast<std::ptrdiff_t>(cumulative.size()) - 1));
+      const auto& t = mesh.triangles[i];
+      const float s = static_cast<float>(std::sqrt(draws[3 * k + 1]));
+      const float r2 = static_cast<float>(draws[3 * k + 2]);
+      cloud.points[k] = (1 - s) * mesh.vertices[t[0]] + s * (1 - r2) * mesh.vertices[t[1]] + s * r2 * mesh.vertices[t[2]];
+      cloud.normals[k] = normals[i];
+    }
+  });
   return cloud;
 }
 
 PointCloud SpatiallyOrdered(const PointCloud& cloud, double cell_m) {
   const float inv = static_cast<float>(1.0 / cell_m);
-  auto cell = [&](std::uint32_t i) {
+  std::vector<std::tuple<int, int, int>> cell(cloud.size());  // computed once, not per comparison
+  for (std::size_t i = 0; i < cloud.size(); ++i) {
     const Eigen::Vector3i k = (cloud.points[i] * inv).array().floor().cast<int>();
-    return std::tuple(k.z(), k.y(), k.x());
-  };
+    cell[i] = std::tuple(k.z(), k.y(), k.x());
+  }
   std::vector<std::uint32_t> order(cloud.size());
   std::iota(order.begin(), order.end(), 0u);
-  std::stable_sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) { return cell(a) < cell(b); });
+  std::stable_sort(order.begin(), order.end(), [&](std::uint32_t a, std::uint32_t b) { return cell[a] < cell[b]; });
   return cloud.Subset(order);
 }
 

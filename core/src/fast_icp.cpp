@@ -1,11 +1,13 @@
 #include "arref/fast_icp.h"
 
 #include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
 #include <tbb/parallel_reduce.h>
 
 #include <Eigen/Cholesky>
 
 #include <cmath>
+#include <limits>
 
 namespace arref {
 namespace {
@@ -72,9 +74,24 @@ void AddCorrespondence(Normal& eq, const Vec3f& p, const Vec3f& q, const Vec3f& 
   ++eq.count;
 }
 
+constexpr std::uint32_t kNoMatch = std::numeric_limits<std::uint32_t>::max();
+
+// The nearest target point within max_sq of p. The last iteration's match, where there is one,
+// bounds the search from the start: the nearest point is no farther than it, so the tree is
+// pruned to that distance (a hair more, so that the old match itself still counts) and the
+// same point is found as without the bound.
+bool NearestFrom(const TargetCloud& target, const Vec3f& p, float max_sq, std::uint32_t* last, std::uint32_t* j,
+                 float* sq) {
+  float bound = max_sq;
+  if (*last != kNoMatch) bound = std::min(bound, 1.0001f * (p - target.index().points()[*last]).squaredNorm() + 1e-12f);
+  const bool found = target.index().NearestWithin(p, bound, j, sq);
+  *last = found ? *j : kNoMatch;
+  return found;
+}
+
 template <IcpMetric kMetric>
 Normal Accumulate(const PointCloud& source, const TargetCloud& target, const Eigen::Isometry3f& T,
-                  const IcpSettings& s, std::size_t begin, std::size_t end) {
+                  const IcpSettings& s, std::size_t begin, std::size_t end, std::uint32_t* last) {
   Normal eq;
   const float max_sq = static_cast<float>(s.max_correspondence_m * s.max_correspondence_m);
   const double scale_sq = s.kernel_scale_m * s.kernel_scale_m;
@@ -84,7 +101,7 @@ Normal Accumulate(const PointCloud& source, const TargetCloud& target, const Eig
     const Vec3f p = T * source.points[i];
     std::uint32_t j;
     float sq;
-    if (!target.index().NearestWithin(p, max_sq, &j, &sq)) continue;
+    if (!NearestFrom(target, p, max_sq, &last[i], &j, &sq)) continue;
     const Vec3f& n = target.normals()[j];
     if (check_normals && (R * source.normals[i]).dot(n) < s.min_normal_cos) continue;
     AddCorrespondence<kMetric>(eq, p, target.index().points()[j], n, scale_sq);
@@ -93,14 +110,14 @@ Normal Accumulate(const PointCloud& source, const TargetCloud& target, const Eig
 }
 
 Normal BuildNormalEquations(const PointCloud& source, const TargetCloud& target, const Iso3& T,
-                            const IcpSettings& s) {
+                            const IcpSettings& s, std::uint32_t* last) {
   const Eigen::Isometry3f Tf = T.cast<float>();
   Normal eq = tbb::parallel_deterministic_reduce(
       tbb::blocked_range<std::size_t>(0, source.size(), 256), Normal{},
       [&](const tbb::blocked_range<std::size_t>& r, Normal acc) {
         acc += s.metric == IcpMetric::kPointToPlane
-                   ? Accumulate<IcpMetric::kPointToPlane>(source, target, Tf, s, r.begin(), r.end())
-                   : Accumulate<IcpMetric::kPointToPoint>(source, target, Tf, s, r.begin(), r.end());
+                   ? Accumulate<IcpMetric::kPointToPlane>(source, target, Tf, s, r.begin(), r.end(), last)
+                   : Accumulate<IcpMetric::kPointToPoint>(source, target, Tf, s, r.begin(), r.end(), last);
         return acc;
       },
       [](Normal a, const Normal& b) { return a += b; });
@@ -144,8 +161,9 @@ IcpStats Align(const PointCloud& source, const TargetCloud& target, const Iso3& 
   IcpStats stats;
   stats.T_target_source = T_target_source;
   double last_cost = -1;
+  std::vector<std::uint32_t> last_match(source.size(), kNoMatch);
   for (; stats.iterations < settings.max_iterations; ++stats.iterations) {
-    const Normal eq = BuildNormalEquations(source, target, stats.T_target_source, settings);
+    const Normal eq = BuildNormalEquations(source, target, stats.T_target_source, settings, last_match.data());
     stats.correspondences = eq.count;
     if (eq.count < 6) break;  // too few to constrain the pose: keep the last one
     const double cost = eq.cost / static_cast<double>(source.size());
@@ -213,17 +231,20 @@ double MedianPlaneDistance(const PointCloud& source, const TargetCloud& target, 
                            double max_distance_m, double min_normal_cos) {
   const Eigen::Isometry3f T = T_target_source.cast<float>();
   const float max_sq = static_cast<float>(max_distance_m * max_distance_m);
-  std::vector<float> distances;
-  distances.reserve(source.size());
-  for (std::size_t i = 0; i < source.size(); ++i) {
-    std::uint32_t j;
-    float sq;
-    const Vec3f p = T * source.points[i];
-    if (!target.index().NearestWithin(p, max_sq, &j, &sq)) continue;
-    const Vec3f& n = target.normals()[j];
-    if ((T.linear() * source.normals[i]).dot(n) < min_normal_cos) continue;
-    distances.push_back(std::abs(n.dot(p - target.index().points()[j])));
-  }
+  constexpr float kNone = -1.0f;  // no normal-compatible target point within reach
+  std::vector<float> distances(source.size(), kNone);
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, source.size(), 512), [&](const auto& r) {
+    for (std::size_t i = r.begin(); i < r.end(); ++i) {
+      std::uint32_t j;
+      float sq;
+      const Vec3f p = T * source.points[i];
+      if (!target.index().NearestWithin(p, max_sq, &j, &sq)) continue;
+      const Vec3f& n = target.normals()[j];
+      if ((T.linear() * source.normals[i]).dot(n) < min_normal_cos) continue;
+      distances[i] = std::abs(n.dot(p - target.index().points()[j]));
+    }
+  });
+  std::erase(distances, kNone);
   if (distances.empty()) return std::numeric_limits<double>::infinity();
   auto mid = distances.begin() + static_cast<std::ptrdiff_t>(distances.size() / 2);
   std::nth_element(distances.begin(), mid, distances.end());

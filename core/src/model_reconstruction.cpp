@@ -9,6 +9,9 @@
 #include <mutex>
 #include <numbers>
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include "arref/model_visibility.h"
 #include "arref/nearest_neighbor.h"
 #include "arref/raycaster.h"
@@ -333,11 +336,13 @@ double MedianEdgeLength(const TriangleMesh& mesh) {
   if (mesh.empty()) return 0.0;
   // At most ~100,000 triangles, spread over the mesh: the median needs no more.
   const std::size_t stride = std::max<std::size_t>(1, mesh.triangles.size() / 100000);
-  std::vector<float> edges;
-  for (std::size_t t = 0; t < mesh.triangles.size(); t += stride) {
-    const Triangle& tri = mesh.triangles[t];
-    for (int k = 0; k < 3; ++k) edges.push_back((mesh.vertices[tri[k]] - mesh.vertices[tri[(k + 1) % 3]]).norm());
-  }
+  std::vector<float> edges(3 * ((mesh.triangles.size() + stride - 1) / stride));
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, edges.size() / 3, 4096), [&](const auto& r) {
+    for (std::size_t k = r.begin(); k < r.end(); ++k) {
+      const Triangle& tri = mesh.triangles[k * stride];
+      for (int e = 0; e < 3; ++e) edges[3 * k + e] = (mesh.vertices[tri[e]] - mesh.vertices[tri[(e + 1) % 3]]).norm();
+    }
+  });
   auto mid = edges.begin() + static_cast<std::ptrdiff_t>(edges.size() / 2);
   std::nth_element(edges.begin(), mid, edges.end());
   return *mid;

@@ -237,6 +237,7 @@ TEST(ExpectedSurface, PixelsOffTheBandChangeNothing) {
     ASSERT_TRUE(masked.Integrate(camera, T_scene_camera, blanked, blank_incidence).ok());
     const auto band = TsdfVolume::BandBlocks(o, camera, T_scene_camera, range);
     ASSERT_TRUE(unaided.Integrate(camera, T_scene_camera, range, incidence, band).ok());
+    ASSERT_EQ(all.block_count(), unaided.block_count()) << "eye " << eye << ": the volume's help missed a block";
   }
   EXPECT_GT(skipped, traced / 10) << "the far wall and the floor beside the robot are off the band";
   EXPECT_GT(traced, 1000u);
@@ -249,6 +250,33 @@ TEST(ExpectedSurface, PixelsOffTheBandChangeNothing) {
     for (std::size_t i = 0; i < a.vertices.size(); ++i) ASSERT_EQ(a.vertices[i], b.vertices[i]) << "vertex " << i;
     EXPECT_EQ(a.triangles, b.triangles);
   }
+}
+
+// The volume's help to BandBlocks steps a pixel only when [r - trunc, r + trunc] along its ray
+// reaches the depths of a near block not yet allocated. Walls of every depth through the band,
+// seen from two eyes: the helped search must allocate exactly the blocks that stepping every
+// pixel finds, after each eye.
+TEST(ExpectedSurface, BandSearchFindsEveryBlockItsRaysReach) {
+  const std::vector<Vec3f> robot = SampleSurface(Box(0.4f, 0.4f, 0.8f), 20000, 1).points;
+  TsdfOptions o;
+  o.voxel_m = kVoxel, o.truncation_m = 3 * kVoxel, o.crop_center = Vec3(0, 0, 0.4), o.crop_radius_m = 2.0;
+  o.near_points = &robot, o.near_margin_m = o.truncation_m + 2 * kVoxel, o.single_precision = true;
+  const PinholeCamera camera = PinholeCamera::FromFov(90, 80, 70);
+  const Iso3 T_first = LookAt(Vec3(1.9, 0, 1.6), Vec3(0, 0, 0.4));
+  const Iso3 T_second = LookAt(Vec3(0.3, 1.8, 1.2), Vec3(0, 0, 0.4));
+  const std::vector<float> incidence(static_cast<std::size_t>(camera.width) * camera.height, 1.0f);
+  std::size_t blocks_seen = 0;
+  for (float depth = 1.2f; depth < 2.8f; depth += 0.011f) {
+    TsdfVolume helped(o), unaided(o);
+    for (const Iso3* T : {&T_first, &T_second}) {
+      const RangeImage range(incidence.size(), T == &T_first ? depth : 3.6f - depth);
+      ASSERT_TRUE(helped.Integrate(camera, *T, range, incidence).ok());
+      ASSERT_TRUE(unaided.Integrate(camera, *T, range, incidence, TsdfVolume::BandBlocks(o, camera, *T, range)).ok());
+      ASSERT_EQ(helped.block_count(), unaided.block_count()) << "a wall " << depth << " m off";
+    }
+    blocks_seen += helped.block_count();
+  }
+  EXPECT_GT(blocks_seen, 500u) << "the walls cross the band";
 }
 
 TEST(ExpectedSurface, NoNearPointsLeaveNoPixelAndNoBlock) {

@@ -33,22 +33,27 @@ PinholeCamera PinholeCamera::FromFov(int width, int height, double fov_horizonta
   return c;
 }
 
-void MarkBox(const PinholeCamera& camera, const Iso3& T_camera_scene, const Aabb& box, PixelMask* mask) {
-  mask->resize(static_cast<std::size_t>(camera.width) * camera.height, 0);
-  if (!box.valid()) return;
+PixelRect PixelsOfBox(const PinholeCamera& camera, const Iso3& T_camera_scene, const Aabb& box) {
+  if (!box.valid()) return {};
   Eigen::Vector2d lo = Eigen::Vector2d::Constant(std::numeric_limits<double>::max()), hi = -lo;
   for (int c = 0; c < 8; ++c) {
     const Vec3 corner((c & 1 ? box.max : box.min).x(), (c & 2 ? box.max : box.min).y(), (c & 4 ? box.max : box.min).z());
     const Vec3 p = T_camera_scene * corner.cast<double>();
-    if (p.z() <= 1e-6) return std::fill(mask->begin(), mask->end(), 1);
+    if (p.z() <= 1e-6) return {0, camera.width, 0, camera.height};
     const Eigen::Vector2d uv = camera.Project(p);
     lo = lo.cwiseMin(uv), hi = hi.cwiseMax(uv);
   }
   // A point inside the box projects within its corners' bounds, onto the pixel at their floor.
   const auto clamp = [](double x, int n) { return static_cast<int>(std::clamp(std::floor(x), 0.0, double(n))); };
-  const int u0 = clamp(lo.x(), camera.width), u1 = clamp(hi.x() + 1, camera.width);
-  for (int v = clamp(lo.y(), camera.height); v < clamp(hi.y() + 1, camera.height); ++v)
-    std::fill_n(mask->begin() + static_cast<std::ptrdiff_t>(v) * camera.width + u0, std::max(0, u1 - u0), 1);
+  return {clamp(lo.x(), camera.width), clamp(hi.x() + 1, camera.width), clamp(lo.y(), camera.height),
+          clamp(hi.y() + 1, camera.height)};
+}
+
+void MarkBox(const PinholeCamera& camera, const Iso3& T_camera_scene, const Aabb& box, PixelMask* mask) {
+  mask->resize(static_cast<std::size_t>(camera.width) * camera.height, 0);
+  const PixelRect r = PixelsOfBox(camera, T_camera_scene, box);
+  for (int v = r.v0; v < r.v1; ++v)
+    std::fill_n(mask->begin() + static_cast<std::ptrdiff_t>(v) * camera.width + r.u0, std::max(0, r.u1 - r.u0), 1);
 }
 
 struct RayCaster::Impl {

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <string>
 #include <unordered_set>
 
@@ -78,30 +79,49 @@ void TsdfVolume::MarkNearBlocks(const std::vector<Vec3f>& points) {
   for (const Eigen::Vector3i& b : near) near_.slot[near_.Offset(b)] = Near::kFree;
 }
 
-// Block b holds the points that BlockOf rounds into it, [(bB - 0.5) v, (bB + B - 0.5) v) per axis,
-// its voxel centres among them: a pixel whose ray misses every such box of a near block can
-// neither allocate nor update a voxel.
-PixelMask TsdfVolume::NearPixels(const PinholeCamera& camera, const Iso3& T_volume_camera) const {
-  if (!near_only_) return PixelMask(static_cast<std::size_t>(camera.width) * camera.height, 1);
-  return PixelsOfBlocks(camera, T_volume_camera, false);
-}
-
-PixelMask TsdfVolume::PixelsOfBlocks(const PinholeCamera& camera, const Iso3& T_volume_camera,
-                                     bool free_only) const {
-  PixelMask mask(static_cast<std::size_t>(camera.width) * camera.height, 0);
-  if (near_.slot.empty()) return mask;  // near_points were given but empty: no block may be held
-  const Iso3 T_camera_volume = T_volume_camera.inverse();
+template <class Fn>
+void TsdfVolume::ForEachNearBlock(bool free_only, Fn&& fn) const {
   const float v = static_cast<float>(options_.voxel_m);
-  for (int z = near_.lo.z(); z <= near_.hi.z(); ++z)
+  for (int z = near_.lo.z(); !near_.slot.empty() && z <= near_.hi.z(); ++z)
     for (int y = near_.lo.y(); y <= near_.hi.y(); ++y)
       for (int x = near_.lo.x(); x <= near_.hi.x(); ++x) {
         const Eigen::Vector3i b(x, y, z);
         const Near slot = near_.slot[near_.Offset(b)];
         if (slot == Near::kFar || (free_only && slot != Near::kFree)) continue;
         const Vec3f lo = (b.cast<float>() * B - Vec3f::Constant(0.5f)) * v;
-        MarkBox(camera, T_camera_volume, Aabb{lo, lo + Vec3f::Constant(B * v)}, &mask);
+        fn(Aabb{lo, lo + Vec3f::Constant(B * v)});
       }
+}
+
+// Block b holds the points that BlockOf rounds into it, [(bB - 0.5) v, (bB + B - 0.5) v) per axis,
+// its voxel centres among them: a pixel whose ray misses every such box of a near block can
+// neither allocate nor update a voxel.
+PixelMask TsdfVolume::NearPixels(const PinholeCamera& camera, const Iso3& T_volume_camera) const {
+  PixelMask mask(static_cast<std::size_t>(camera.width) * camera.height, near_only_ ? 0 : 1);
+  const Iso3 T_camera_volume = T_volume_camera.inverse();
+  ForEachNearBlock(false, [&](const Aabb& box) { MarkBox(camera, T_camera_volume, box, &mask); });
   return mask;
+}
+
+TsdfVolume::DepthWindow TsdfVolume::FreeBlockDepths(const PinholeCamera& camera, const Iso3& T_volume_camera) const {
+  const std::size_t pixels = static_cast<std::size_t>(camera.width) * camera.height;
+  DepthWindow window{std::vector<float>(pixels, std::numeric_limits<float>::max()), std::vector<float>(pixels, 0.0f)};
+  const Iso3 T_camera_volume = T_volume_camera.inverse();
+  const Vec3f eye = T_volume_camera.translation().cast<float>();
+  constexpr float kSlack = 1e-4f;  // covers float rounding of the box and of the ray's steps (m)
+  ForEachNearBlock(true, [&](const Aabb& box) {
+    const PixelRect r = PixelsOfBox(camera, T_camera_volume, box);
+    const Vec3f out_of_box = (box.min - eye).cwiseMax(eye - box.max).cwiseMax(Vec3f::Zero());
+    const Vec3f far_corner = (box.min - eye).cwiseAbs().cwiseMax((box.max - eye).cwiseAbs());
+    const float nearest = std::max(0.0f, out_of_box.norm() - kSlack), farthest = far_corner.norm() + kSlack;
+    for (int v = r.v0; v < r.v1; ++v)
+      for (int u = r.u0; u < r.u1; ++u) {
+        const std::size_t pixel = static_cast<std::size_t>(v) * camera.width + u;
+        window.nearest[pixel] = std::min(window.nearest[pixel], nearest);
+        window.farthest[pixel] = std::max(window.farthest[pixel], farthest);
+      }
+  });
+  return window;
 }
 
 std::ptrdiff_t TsdfVolume::NearGrid::Offset(const Eigen::Vector3i& b) const {
@@ -153,18 +173,19 @@ std::vector<Eigen::Vector3i> TsdfVolume::BandBlocks(const TsdfOptions& options, 
   const double step = std::min(0.5 * block_m, trunc);
   const double keep_radius = options.crop_radius_m + 0.87 * block_m;
   std::vector<std::vector<Eigen::Vector3i>> rows(camera.height);
-  // Kept to the band round near_points, only rays through a block not yet allocated can add
-  // one; the other pixels need no steps (exact). The refit's robot still leaves about 70 % of
-  // this step's time: unseen blocks behind it lie on its own pixels' rays.
-  PixelMask adding;
-  if (allocating && allocating->near_only_)
-    adding = allocating->PixelsOfBlocks(camera, T_volume_camera, true);
+  // Kept to the band round near_points, only steps inside a block not yet allocated can add
+  // one: a pixel is stepped only when its steps, [r - trunc, r + trunc] along the ray, reach the
+  // depths of such a block on its ray (exact). Unseen blocks behind the robot lie on its own
+  // pixels' rays, but deeper than the steps go.
+  DepthWindow adding;
+  if (allocating && allocating->near_only_) adding = allocating->FreeBlockDepths(camera, T_volume_camera);
   tbb::parallel_for(0, camera.height, [&](int v) {
     Key last = ~Key{0};
     for (int u = 0; u < camera.width; ++u) {
       const std::size_t pixel = static_cast<std::size_t>(v) * camera.width + u;
       const float r = range[pixel];
-      if (r <= 0 || (!adding.empty() && !adding[pixel])) continue;
+      if (r <= 0) continue;
+      if (!adding.nearest.empty() && (r + trunc < adding.nearest[pixel] || r - trunc > adding.farthest[pixel])) continue;
       const Vec3 dir = T_volume_camera.linear() * camera.RayDirection(u, v);
       for (double t = r - trunc; t <= r + trunc + 1e-9; t += step) {
         const Vec3 p = T_volume_camera.translation() + t * dir;

@@ -50,8 +50,14 @@ using RangeImage = std::vector<float>;
 
 // Which pixels of an image to trace (row-major, non-zero: traced).
 using PixelMask = std::vector<std::uint8_t>;
-// Marks the pixels whose rays can pass through a box (scene frame): the bounds of its corners'
-// projections. Every pixel when part of the box lies behind the camera.
+// The pixels whose rays can pass through a box (scene frame): columns [u0, u1) of rows [v0, v1),
+// the bounds of its corners' projections. The whole image when part of the box lies behind the
+// camera; empty (u0 == u1 or v0 == v1) when the box is invalid or off the image.
+struct PixelRect {
+  int u0 = 0, u1 = 0, v0 = 0, v1 = 0;
+};
+PixelRect PixelsOfBox(const PinholeCamera& camera, const Iso3& T_camera_scene, const Aabb& box);
+// Marks PixelsOfBox in the mask (sized to the image).
 void MarkBox(const PinholeCamera& camera, const Iso3& T_camera_scene, const Aabb& box, PixelMask* mask);
 
 class RayCaster {

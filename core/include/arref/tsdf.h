@@ -87,8 +87,15 @@ class TsdfVolume {
   bool WouldAllocate(const Eigen::Vector3i& block) const;
   // Of the blocks near options_.near_points: far, near and not yet allocated, allocated.
   enum class Near : std::uint8_t { kFar, kFree, kAllocated };
-  // The pixels whose rays pass a near block: any, or only those not yet allocated.
-  PixelMask PixelsOfBlocks(const PinholeCamera& camera, const Iso3& T_volume_camera, bool free_only) const;
+  // Calls fn(box) with the bounds of every near block, or of those not yet allocated.
+  template <class Fn>
+  void ForEachNearBlock(bool free_only, Fn&& fn) const;
+  // Per pixel, the depths along its ray (distance from the camera) between which it can pass a
+  // near block not yet allocated; nearest > farthest where it passes none.
+  struct DepthWindow {
+    std::vector<float> nearest, farthest;
+  };
+  DepthWindow FreeBlockDepths(const PinholeCamera& camera, const Iso3& T_volume_camera) const;
   template <class Scalar>
   void UpdateVoxels(Block& block, const PinholeCamera& camera, const Eigen::Matrix<Scalar, 3, 1>& origin,
                     const Eigen::Matrix<Scalar, 3, 3>& step, const RangeImage& range,

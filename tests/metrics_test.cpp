@@ -1,5 +1,6 @@
 #include <gtest/gtest.h>
 
+#include <limits>
 #include <random>
 
 #include "arref/metrics.h"
@@ -54,6 +55,33 @@ TEST(NearestNeighbor, MatchesBruteForce) {
     EXPECT_FLOAT_EQ(sq, (pts[best] - query).squaredNorm());
   }
   EXPECT_FALSE(PointIndex({}).Nearest(Vec3f::Zero(), nullptr, nullptr));
+}
+
+// AnyWithin stops at the first point inside the bound: its answer must still be whether the
+// nearest point lies inside, for bounds round the nearest distance (both sides of it) too.
+TEST(NearestNeighbor, AnyWithinAnswersAsTheNearestDoes) {
+  std::mt19937_64 rng(2);
+  std::uniform_real_distribution<float> u(-1, 1);
+  std::vector<Vec3f> pts(3000);
+  for (auto& p : pts) p = Vec3f(u(rng), u(rng), 0.1f * u(rng));  // a slab, like a mapped surface
+  const PointIndex index(pts);
+  int inside = 0, outside = 0;
+  for (int q = 0; q < 400; ++q) {
+    const Vec3f query(1.2f * u(rng), 1.2f * u(rng), 0.3f * u(rng));
+    float nearest_sq = std::numeric_limits<float>::max();
+    for (const Vec3f& p : pts) nearest_sq = std::min(nearest_sq, (p - query).squaredNorm());
+    for (float bound : {0.25f * nearest_sq, 0.999f * nearest_sq, 1.001f * nearest_sq, 4.0f * nearest_sq}) {
+      std::uint32_t i;
+      float sq;
+      const bool expected = index.NearestWithin(query, bound, &i, &sq);
+      EXPECT_EQ(expected, bound > nearest_sq) << "bound " << bound << ", nearest " << nearest_sq;
+      EXPECT_EQ(index.AnyWithin(query, bound), expected) << "query " << q << ", bound " << bound;
+      (expected ? inside : outside) += 1;
+    }
+  }
+  EXPECT_GT(inside, 400);
+  EXPECT_GT(outside, 400);
+  EXPECT_FALSE(PointIndex({}).AnyWithin(Vec3f::Zero(), 1.0f));
 }
 
 }  // namespace

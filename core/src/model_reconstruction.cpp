@@ -192,11 +192,14 @@ TriangleMesh ExpectedSurfaceMaker::RobotPart(const TriangleMesh& fused, const Po
   const float floor_z = std::min(0.0f, parts_->box.min.z());
   return KeepTriangles(fused, [&](const Triangle& t) {
     const Vec3f c = Centroid(fused, t);
-    float limit_sq = (c.z() - floor_z) * (c.z() - floor_z);
+    const float floor_sq = (c.z() - floor_z) * (c.z() - floor_z);
+    // Nearer to the floor than to the robot: no object can change that, so the objects are
+    // asked only about the others.
+    if (!parts_->robot.AnyWithin(c, floor_sq)) return false;
     std::uint32_t i;
-    float sq;
-    if (context && context->NearestWithin(c, limit_sq, &i, &sq)) limit_sq = sq;
-    return parts_->robot.NearestWithin(c, limit_sq, &i, &sq);
+    float object_sq;
+    if (!context || !context->NearestWithin(c, floor_sq, &i, &object_sq)) return true;
+    return parts_->robot.AnyWithin(c, object_sq);
   });
 }
 
@@ -249,9 +252,7 @@ TriangleMesh ExpectedSurfaceMaker::Context(const TriangleMesh& scene_world, cons
   return KeepTriangles(base, [&](const Triangle& t) {
     const Vec3f c = Centroid(base, t);
     if (!near_robot.Contains(c)) return true;
-    std::uint32_t i;
-    float sq;
-    return !parts_->robot.NearestWithin(c, clear_sq, &i, &sq);
+    return !parts_->robot.AnyWithin(c, clear_sq);
   });
 }
 

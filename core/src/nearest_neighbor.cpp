@@ -60,7 +60,30 @@ class BoundedNearest {
   std::uint32_t index_ = 0;
   bool found_ = false;
 };
+// A nanoflann result set that ends the search at the first point within the bound.
+class AnyWithinBound {
+ public:
+  explicit AnyWithinBound(float max_sq) : bound_(max_sq) {}
+  bool full() const { return true; }
+  bool addPoint(float sq, std::uint32_t) {
+    found_ = found_ || sq < bound_;
+    return !found_;  // false: stop searching
+  }
+  float worstDist() const { return bound_; }
+  bool found() const { return found_; }
+
+ private:
+  float bound_;
+  bool found_ = false;
+};
 }  // namespace
+
+bool PointIndex::AnyWithin(const Vec3f& query, float max_sq_dist) const {
+  if (impl_->points.empty()) return false;
+  AnyWithinBound result(max_sq_dist);
+  impl_->tree.findNeighbors(result, query.data(), nanoflann::SearchParams());
+  return result.found();
+}
 
 bool PointIndex::NearestWithin(const Vec3f& query, float max_sq_dist, std::uint32_t* index, float* sq_dist) const {
   if (impl_->points.empty()) return false;

@@ -105,9 +105,7 @@ TriangleMesh TrianglesNear(const TriangleMesh& mesh, const PointIndex& points, d
   const float limit_sq = static_cast<float>(distance_m * distance_m);
   return KeepTriangles(mesh, [&](const Triangle& t) {
     const Vec3f c = Centroid(mesh, t);
-    std::uint32_t i;
-    float sq;
-    return near.Contains(c) && points.NearestWithin(c, limit_sq, &i, &sq);
+    return near.Contains(c) && points.AnyWithin(c, limit_sq);
   });
 }
 

@@ -23,6 +23,9 @@ class PointIndex {
   // The nearest point closer than sqrt(max_sq_dist), or false. Much faster than Nearest when
   // the query is far from every point: the bound prunes the tree from the start.
   bool NearestWithin(const Vec3f& query, float max_sq_dist, std::uint32_t* index, float* sq_dist) const;
+  // Whether any point is closer than sqrt(max_sq_dist): NearestWithin's answer, but the search
+  // stops at the first such point instead of looking on for the nearest.
+  bool AnyWithin(const Vec3f& query, float max_sq_dist) const;
 
  private:
   struct Impl;

@@ -1,5 +1,6 @@
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <random>
 
@@ -73,6 +74,45 @@ TEST(Sampling, SameCloudOnAnyNumberOfThreads) {
   }
   EXPECT_EQ(parallel.points, serial.points);
   EXPECT_EQ(parallel.normals, serial.normals);
+}
+
+// The triangle pick searches only the slice of the running sum its draw falls in; the answer
+// must be upper_bound's over the whole sum, as in the plain algorithm below (Osada et al.), on
+// a mesh with zero-area triangles and areas spanning six orders of magnitude.
+TEST(Sampling, SameCloudAsThePlainAlgorithm) {
+  TriangleMesh mesh;
+  std::mt19937_64 shape(5);
+  std::uniform_real_distribution<float> u(0, 1);
+  for (std::uint32_t t = 0; t < 5000; ++t) {
+    const float size = std::pow(10.0f, -3.0f * u(shape));
+    const Vec3f a(u(shape), u(shape), u(shape));
+    const Vec3f b = a + size * Vec3f(u(shape), u(shape), 0);
+    const Vec3f c = t % 7 == 0 ? b : Vec3f(a + size * Vec3f(0, u(shape), u(shape)));  // every 7th degenerate
+    mesh.vertices.insert(mesh.vertices.end(), {a, b, c});
+    mesh.triangles.push_back({3 * t, 3 * t + 1, 3 * t + 2});
+  }
+  const std::size_t n = 20000;
+  std::vector<double> cumulative;
+  double total = 0;
+  for (const auto& t : mesh.triangles) {
+    const Vec3f cross = (mesh.vertices[t[1]] - mesh.vertices[t[0]]).cross(mesh.vertices[t[2]] - mesh.vertices[t[0]]);
+    cumulative.push_back(total += 0.5 * cross.norm());
+  }
+  std::mt19937_64 rng(11);
+  std::uniform_real_distribution<double> uniform(0.0, 1.0);
+  const PointCloud c = SampleSurface(mesh, n, 11);
+  ASSERT_EQ(c.size(), n);
+  for (std::size_t k = 0; k < n; ++k) {
+    const double pick = uniform(rng) * total;
+    const auto i = std::min<std::size_t>(
+        static_cast<std::size_t>(std::upper_bound(cumulative.begin(), cumulative.end(), pick) - cumulative.begin()),
+        cumulative.size() - 1);
+    const auto& t = mesh.triangles[i];
+    const float s = static_cast<float>(std::sqrt(uniform(rng)));
+    const float r2 = static_cast<float>(uniform(rng));
+    const Vec3f p = (1 - s) * mesh.vertices[t[0]] + s * (1 - r2) * mesh.vertices[t[1]] + s * r2 * mesh.vertices[t[2]];
+    ASSERT_EQ(c.points[k], p) << "sample " << k << " should lie on triangle " << i;
+  }
 }
 
 TEST(Sampling, RobotSampleLiesOnItsSurface) {

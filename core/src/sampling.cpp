@@ -38,13 +38,28 @@ PointCloud SampleSurface(const TriangleMesh& mesh, std::size_t n, std::uint64_t 
   std::uniform_real_distribution<double> uniform(0.0, 1.0);
   std::vector<double> draws(3 * n);
   for (double& d : draws) d = uniform(rng);
+  // Where upper_bound's answer lies for picks in each of `buckets` equal slices of [0, total]:
+  // the search then covers a slice's few triangles instead of the whole mesh (same answer).
+  const std::size_t buckets = std::max<std::size_t>(1, cumulative.size() / 4);
+  const auto lower = [&](std::size_t b) { return total * static_cast<double>(b) / static_cast<double>(buckets); };
+  std::vector<std::size_t> first(buckets + 1);  // the first triangle whose running sum exceeds the slice's lower end
+  for (std::size_t b = 0, i = 0; b <= buckets; ++b) {
+    while (i < cumulative.size() && cumulative[i] <= lower(b)) ++i;
+    first[b] = i;
+  }
   cloud.points.resize(n);
   cloud.normals.resize(n);
   tbb::parallel_for(tbb::blocked_range<std::size_t>(0, n, 1024), [&](const auto& r) {
     for (std::size_t k = r.begin(); k < r.end(); ++k) {
       const double pick = draws[3 * k] * total;
+      auto b = std::min(buckets - 1, static_cast<std::size_t>(pick / total * static_cast<double>(buckets)));
+      while (b > 0 && pick < lower(b)) --b;  // rounding may put the pick one slice off
+      while (b + 1 < buckets && pick >= lower(b + 1)) ++b;
+      // The answer lies in [first[b], first[b + 1]]; when it is the last, upper_bound returns end.
       const auto i = static_cast<std::size_t>(std::min<std::ptrdiff_t>(
-          std::upper_bound(cumulative.begin(), cumulative.end(), pick) - cumulative.begin(),
+          std::upper_bound(cumulative.begin() + static_cast<std::ptrdiff_t>(first[b]),
+                           cumulative.begin() + static_cast<std::ptrdiff_t>(first[b + 1]), pick) -
+              cumulative.begin(),
           static_cast<std::ptrdiff_t>(cumulative.size()) - 1));
       const auto& t = mesh.triangles[i];
       const float s = static_cast<float>(std::sqrt(draws[3 * k + 1]));

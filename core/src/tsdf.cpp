@@ -9,6 +9,10 @@
 #include <string>
 #include <unordered_set>
 
+#if defined(__SSE2__)
+#include <emmintrin.h>
+#endif
+
 namespace arref {
 namespace {
 
@@ -43,6 +47,39 @@ void EmitQuad(const std::array<std::uint32_t, 4>& q, const std::vector<Vec3f>& v
   for (const Triangle& t : {t1, t2})
     if ((p[t[1]] - p[t[0]]).cross(p[t[2]] - p[t[0]]).squaredNorm() > 1e-20f) out.push_back(t);
 }
+
+// Camera-frame depth, image position and distance from the camera of the voxels row + x * dx,
+// x = 0..N-1, as UpdateVoxelsFast computes them one by one: u = f * p.x / p.z + cx (as
+// f * p.x * (1 / p.z) + cx), and |p| as Eigen's norm, sqrt(x^2 + (y^2 + z^2)). With SSE, four
+// lanes at a time: packed and scalar adds, multiplies, divisions and square roots round alike.
+template <int N>
+struct RowOfVoxels {
+  alignas(16) std::array<float, N> z, u, v, distance;
+  RowOfVoxels(const Vec3f& row, const Vec3f& dx, float f, float cx, float cy) {
+#if defined(__SSE2__)
+    static_assert(N % 4 == 0);
+    for (int x = 0; x < N; x += 4) {
+      const __m128 xs = _mm_setr_ps(float(x), float(x + 1), float(x + 2), float(x + 3));
+      const __m128 px = _mm_add_ps(_mm_set1_ps(row.x()), _mm_mul_ps(_mm_set1_ps(dx.x()), xs));
+      const __m128 py = _mm_add_ps(_mm_set1_ps(row.y()), _mm_mul_ps(_mm_set1_ps(dx.y()), xs));
+      const __m128 pz = _mm_add_ps(_mm_set1_ps(row.z()), _mm_mul_ps(_mm_set1_ps(dx.z()), xs));
+      const __m128 inv_z = _mm_div_ps(_mm_set1_ps(1.0f), pz);
+      const __m128 fs = _mm_set1_ps(f);
+      _mm_store_ps(&z[x], pz);
+      _mm_store_ps(&u[x], _mm_add_ps(_mm_mul_ps(_mm_mul_ps(fs, px), inv_z), _mm_set1_ps(cx)));
+      _mm_store_ps(&v[x], _mm_add_ps(_mm_mul_ps(_mm_mul_ps(fs, py), inv_z), _mm_set1_ps(cy)));
+      const __m128 sq = _mm_add_ps(_mm_mul_ps(px, px), _mm_add_ps(_mm_mul_ps(py, py), _mm_mul_ps(pz, pz)));
+      _mm_store_ps(&distance[x], _mm_sqrt_ps(sq));
+    }
+#else
+    for (int x = 0; x < N; ++x) {
+      const Vec3f p = row + dx * static_cast<float>(x);
+      const float inv_z = 1.0f / p.z();
+      z[x] = p.z(), u[x] = f * p.x() * inv_z + cx, v[x] = f * p.y() * inv_z + cy, distance[x] = p.norm();
+    }
+#endif
+  }
+};
 
 }  // namespace
 
@@ -254,15 +291,16 @@ void TsdfVolume::UpdateVoxelsFast(Block& block, const PinholeCamera& camera, con
   for (int z = 0; z < B; ++z)
     for (int y = 0; y < B; ++y) {
       const Vec3f row = origin + step.col(1) * static_cast<float>(y) + step.col(2) * static_cast<float>(z);
+      // The row's projections and distances, four voxels at a time (RowOfVoxels); the same
+      // IEEE operations in the same order as one at a time, so the same bits.
+      const RowOfVoxels<B> voxels(row, step.col(0), f, cx, cy);
       for (int x = 0; x < B; ++x) {
-        const Vec3f p = row + step.col(0) * static_cast<float>(x);
-        if (p.z() <= 1e-6f) continue;
-        const float inv_z = 1.0f / p.z();
-        const float u = f * p.x() * inv_z + cx, v = f * p.y() * inv_z + cy;
+        if (voxels.z[x] <= 1e-6f) continue;
+        const float u = voxels.u[x], v = voxels.v[x];
         if (!(u >= 0 && v >= 0 && u < width && v < height)) continue;
         const int pixel = static_cast<int>(v) * camera.width + static_cast<int>(u);
         if (range[pixel] <= 0) continue;
-        const float sdf = (range[pixel] - p.norm()) * std::max(0.1f, incidence[pixel]);
+        const float sdf = (range[pixel] - voxels.distance[x]) * std::max(0.1f, incidence[pixel]);
         if (sdf < -trunc) continue;
         Voxel& vox = block.voxels[LocalIndex(x, y, z)];
         const float d = std::min(1.0f, sdf * inv_trunc);

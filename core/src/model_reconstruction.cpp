@@ -163,27 +163,41 @@ std::shared_ptr<const std::vector<ExpectedSurfaceMaker::View>> ExpectedSurfaceMa
 Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const Rig& rig, const std::vector<const View*>& robot_views,
                                                 const RayCaster* context) const {
   TsdfVolume volume(rig.volume);
-  for (std::size_t a = 0; a < rig.T_base_cameras.size(); ++a) {
-    const Iso3& T_base_camera = rig.T_base_cameras[a];
-    if (!context) {  // the robot alone: its images and their bands as MakeMany shares them
-      const View& view = *robot_views[a];
-      ARREF_RETURN_IF_ERROR(volume.Integrate(rig.camera, T_base_camera, view.range, view.incidence, view.band));
-      continue;
-    }
-    // Pixels whose rays miss the band change no voxel of it: they are not traced (exact).
-    const PixelMask traced = volume.NearPixels(rig.camera, T_base_camera);
-    View view;
-    if (robot_views.empty()) {  // the caster holds robot and objects
-      view.range = context->Render(rig.camera, T_base_camera, rig.max_range, &view.incidence, nullptr, &traced);
-    } else {
-      view = *robot_views[a];
-      std::vector<float> context_incidence;
-      NearerOf(context->Render(rig.camera, T_base_camera, rig.max_range, &context_incidence, &view.range, &traced),
-               context_incidence, &view.range, &view.incidence);
-    }
-    ARREF_RETURN_IF_ERROR(volume.Integrate(rig.camera, T_base_camera, view.range, view.incidence));
+  if (!context) {  // the robot alone: its images and their bands as MakeMany shares them
+    for (std::size_t a = 0; a < rig.T_base_cameras.size(); ++a)
+      ARREF_RETURN_IF_ERROR(volume.Integrate(rig.camera, rig.T_base_cameras[a], robot_views[a]->range,
+                                             robot_views[a]->incidence, robot_views[a]->band));
+    return volume.ExtractMesh();
   }
+  const std::vector<View> views = ViewsInContext(rig, robot_views, *context, volume);
+  for (std::size_t a = 0; a < views.size(); ++a)
+    ARREF_RETURN_IF_ERROR(volume.Integrate(rig.camera, rig.T_base_cameras[a], views[a].range, views[a].incidence));
   return volume.ExtractMesh();
+}
+
+// Every eye's image with the objects, all eyes at once: which pixels to trace depends on the
+// volume's band, not on what earlier eyes allocated in it. Pixels whose rays miss the band
+// change no voxel of it, so they are not traced (exact).
+std::vector<ExpectedSurfaceMaker::View> ExpectedSurfaceMaker::ViewsInContext(const Rig& rig,
+                                                                             const std::vector<const View*>& robot_views,
+                                                                             const RayCaster& context,
+                                                                             const TsdfVolume& volume) const {
+  std::vector<View> views(rig.T_base_cameras.size());
+  tbb::parallel_for(std::size_t{0}, views.size(), [&](std::size_t a) {
+    const Iso3& T_base_camera = rig.T_base_cameras[a];
+    const PixelMask traced = volume.NearPixels(rig.camera, T_base_camera);
+    View& view = views[a];
+    if (robot_views.empty()) {  // the caster holds robot and objects
+      view.range = context.Render(rig.camera, T_base_camera, rig.max_range, &view.incidence, nullptr, &traced);
+      return;
+    }
+    view.range = robot_views[a]->range;
+    view.incidence = robot_views[a]->incidence;
+    std::vector<float> context_incidence;
+    NearerOf(context.Render(rig.camera, T_base_camera, rig.max_range, &context_incidence, &view.range, &traced),
+             context_incidence, &view.range, &view.incidence);
+  });
+  return views;
 }
 
 // The fused triangles that belong to the robot: nearer to its surface than to the floor and

@@ -23,6 +23,7 @@ namespace arref {
 class RayCaster;
 class PointIndex;
 struct TsdfOptions;
+class TsdfVolume;
 
 struct ReconstructionOptions {
   double voxel_m = 0.035;         // the headset mesh's voxel (its median edge length)
@@ -79,6 +80,8 @@ class ExpectedSurfaceMaker {
   View Render(const Rig& rig, std::size_t eye) const;
   Result<TriangleMesh> Fuse(const Rig& rig, const std::vector<const View*>& robot_views,
                             const RayCaster* context) const;
+  std::vector<View> ViewsInContext(const Rig& rig, const std::vector<const View*>& robot_views,
+                                   const RayCaster& context, const TsdfVolume& volume) const;
   TsdfOptions Volume(const ReconstructionOptions& options) const;
   Aabb Band(const ReconstructionOptions& options) const;
   TriangleMesh Context(const TriangleMesh& scene_world, const Iso3& T_world_base, double clearance_m) const;

@@ -1,6 +1,7 @@
 #include "arref/pipeline.h"
 
 #include <spdlog/spdlog.h>
+#include <tbb/task_group.h>
 
 #include <chrono>
 
@@ -37,6 +38,19 @@ class StageClock {
   const ProgressFn& progress_;
   std::string stage_;
   std::chrono::steady_clock::time_point start_;
+};
+
+// Waits for a task group's tasks when it goes out of scope, so that none outlives what it uses.
+// Only an early return leaves them unwaited, and its error is the one reported: a task's own
+// exception is dropped there rather than thrown from a destructor.
+struct WaitOnExit {
+  tbb::task_group& group;
+  ~WaitOnExit() {
+    try {
+      group.wait();
+    } catch (...) {
+    }
+  }
 };
 
 Status CheckOptions(const RegistrationOptions& o) {
@@ -142,16 +156,20 @@ Result<RegistrationReport> Register(const PointCloud& model_base, const RobotSid
         options.crop_radius_m, c.x(), c.y(), c.z()));
   }
 
-  std::shared_ptr<const PointCloud> expected;
+  // The expected surface is looked up while the scene is sampled and indexed: the median edge
+  // length it needs is about 1 ms of serial work (and the first request per voxel size builds
+  // the surfaces). Its stage is the wait for it after the index.
+  const bool wants_expected =
+      robot && MethodInfoOf(options.method).uses_expected_surface && options.arref_icp.expected_surface;
   double voxel = 0;
-  if (robot && MethodInfoOf(options.method).uses_expected_surface && options.arref_icp.expected_surface) {
-    clock.Start("expected-surface", 0.05);  // a cache hit after the first request per voxel size
-    voxel = options.arref_icp.expected_voxel_m > 0 ? options.arref_icp.expected_voxel_m : MedianEdgeLength(cropped);
-    auto e = ExpectedSurface(*robot, voxel);
-    if (!e.ok()) return e.status();
-    expected = *e;
-    if (expected) report.stages_run.push_back("expected-surface");
-  }
+  Result<std::shared_ptr<const PointCloud>> expected = std::shared_ptr<const PointCloud>();
+  tbb::task_group alongside;
+  const WaitOnExit wait_on_exit{alongside};  // also on the early returns below
+  if (wants_expected)
+    alongside.run([&] {
+      voxel = options.arref_icp.expected_voxel_m > 0 ? options.arref_icp.expected_voxel_m : MedianEdgeLength(cropped);
+      expected = ExpectedSurface(*robot, voxel);
+    });
 
   clock.Start("sample", 0.1);
   PointCloud scene = SampleSurface(cropped, options.scene_samples, options.sample_seed);
@@ -173,8 +191,14 @@ Result<RegistrationReport> Register(const PointCloud& model_base, const RobotSid
   clock.Start("index", 0.28);
   // One k-d tree of the scene serves the method (when it takes one) and the evaluation.
   const TargetCloud target(scene);
+  if (wants_expected) {
+    clock.Start("expected-surface", 0.29);  // a cache hit after the first request per voxel size
+    alongside.wait();
+    if (!expected.ok()) return expected.status();
+    if (*expected) report.stages_run.insert(report.stages_run.begin(), "expected-surface");
+  }
   clock.Start("register", 0.3);
-  auto out = MethodInfoOf(options.method).run(MethodInput{model_base, scene, T_world_seed, options, &target, expected.get(), robot, voxel, &cropped});
+  auto out = MethodInfoOf(options.method).run(MethodInput{model_base, scene, T_world_seed, options, &target, expected->get(), robot, voxel, &cropped});
   if (!out.ok()) return out.status().WithContext(report.method);
   report.T_world_base = out->T_world_base;
   report.iterations = out->iterations;

@@ -49,13 +49,6 @@ PixelRect PixelsOfBox(const PinholeCamera& camera, const Iso3& T_camera_scene, c
           clamp(hi.y() + 1, camera.height)};
 }
 
-void MarkBox(const PinholeCamera& camera, const Iso3& T_camera_scene, const Aabb& box, PixelMask* mask) {
-  mask->resize(static_cast<std::size_t>(camera.width) * camera.height, 0);
-  const PixelRect r = PixelsOfBox(camera, T_camera_scene, box);
-  for (int v = r.v0; v < r.v1; ++v)
-    std::fill_n(mask->begin() + static_cast<std::ptrdiff_t>(v) * camera.width + r.u0, std::max(0, r.u1 - r.u0), 1);
-}
-
 struct RayCaster::Impl {
   RTCDevice device = nullptr;
   RTCScene scene = nullptr;

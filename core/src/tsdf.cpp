@@ -136,7 +136,11 @@ void TsdfVolume::ForEachNearBlock(bool free_only, Fn&& fn) const {
 PixelMask TsdfVolume::NearPixels(const PinholeCamera& camera, const Iso3& T_volume_camera) const {
   PixelMask mask(static_cast<std::size_t>(camera.width) * camera.height, near_only_ ? 0 : 1);
   const Iso3 T_camera_volume = T_volume_camera.inverse();
-  ForEachNearBlock(false, [&](const Aabb& box) { MarkBox(camera, T_camera_volume, box, &mask); });
+  ForEachNearBlock(false, [&](const Aabb& box) {
+    const PixelRect r = PixelsOfBox(camera, T_camera_volume, box);
+    for (int v = r.v0; v < r.v1; ++v)
+      std::fill_n(mask.begin() + static_cast<std::ptrdiff_t>(v) * camera.width + r.u0, std::max(0, r.u1 - r.u0), 1);
+  });
   return mask;
 }
 

@@ -57,8 +57,6 @@ struct PixelRect {
   int u0 = 0, u1 = 0, v0 = 0, v1 = 0;
 };
 PixelRect PixelsOfBox(const PinholeCamera& camera, const Iso3& T_camera_scene, const Aabb& box);
-// Marks PixelsOfBox in the mask (sized to the image).
-void MarkBox(const PinholeCamera& camera, const Iso3& T_camera_scene, const Aabb& box, PixelMask* mask);
 
 class RayCaster {
  public:

@@ -1,9 +1,11 @@
 #include <gtest/gtest.h>
 
+#include <array>
 #include <limits>
 #include <random>
 
 #include "arref/metrics.h"
+#include "arref/nearest_neighbor.h"
 
 namespace arref {
 namespace {
@@ -82,6 +84,43 @@ TEST(NearestNeighbor, AnyWithinAnswersAsTheNearestDoes) {
   EXPECT_GT(inside, 400);
   EXPECT_GT(outside, 400);
   EXPECT_FALSE(PointIndex({}).AnyWithin(Vec3f::Zero(), 1.0f));
+}
+
+// MovingNearest answers from the points it kept round a query's last position: walks of small
+// and large steps, with the bounds of arref-icp's levels changing on the way, must get the tree's
+// answer at every step, found or not.
+TEST(NearestNeighbor, MovingNearestAnswersAsTheTreeDoes) {
+  std::mt19937_64 rng(3);
+  std::uniform_real_distribution<float> u(-1, 1);
+  std::vector<Vec3f> pts(20000);
+  for (auto& p : pts) p = Vec3f(u(rng), u(rng), 0.002f * u(rng));  // a mapped floor, ~1.4 cm apart
+  const PointIndex index(pts);
+  const std::array<float, 5> steps_m = {0.0002f, 0.001f, 0.003f, 0.01f, 0.05f};
+  const std::array<float, 4> bounds_m = {0.012f, 0.02f, 0.08f, 0.3f};
+  int found = 0, missed = 0;
+  for (int walk = 0; walk < 40; ++walk) {
+    MovingNearest moving;
+    Vec3f query(0.9f * u(rng), 0.9f * u(rng), 0.02f * u(rng));
+    const float step = steps_m[walk % steps_m.size()];
+    for (int call = 0; call < 60; ++call) {
+      query += step * Vec3f(u(rng), u(rng), 0.3f * u(rng));
+      const float bound = bounds_m[(call / 15 + walk) % bounds_m.size()];
+      std::uint32_t want_i = 0, got_i = 0;
+      float want_sq = 0, got_sq = 0;
+      const bool want = index.NearestWithin(query, bound * bound, &want_i, &want_sq);
+      ASSERT_EQ(moving.NearestWithin(index, query, bound * bound, &got_i, &got_sq), want)
+          << "walk " << walk << ", call " << call;
+      if (!want) {
+        ++missed;
+        continue;
+      }
+      ++found;
+      ASSERT_EQ(got_i, want_i) << "walk " << walk << ", call " << call;
+      ASSERT_EQ(got_sq, want_sq);
+    }
+  }
+  EXPECT_GT(found, 1000);
+  EXPECT_GT(missed, 100);
 }
 
 }  // namespace

@@ -74,24 +74,9 @@ void AddCorrespondence(Normal& eq, const Vec3f& p, const Vec3f& q, const Vec3f& 
   ++eq.count;
 }
 
-constexpr std::uint32_t kNoMatch = std::numeric_limits<std::uint32_t>::max();
-
-// The nearest target point within max_sq of p. The last iteration's match, where there is one,
-// bounds the search from the start: the nearest point is no farther than it, so the tree is
-// pruned to that distance (a hair more, so that the old match itself still counts) and the
-// same point is found as without the bound.
-bool NearestFrom(const TargetCloud& target, const Vec3f& p, float max_sq, std::uint32_t* last, std::uint32_t* j,
-                 float* sq) {
-  float bound = max_sq;
-  if (*last != kNoMatch) bound = std::min(bound, 1.0001f * (p - target.index().points()[*last]).squaredNorm() + 1e-12f);
-  const bool found = target.index().NearestWithin(p, bound, j, sq);
-  *last = found ? *j : kNoMatch;
-  return found;
-}
-
 template <IcpMetric kMetric>
 Normal Accumulate(const PointCloud& source, const TargetCloud& target, const Eigen::Isometry3f& T,
-                  const IcpSettings& s, std::size_t begin, std::size_t end, std::uint32_t* last) {
+                  const IcpSettings& s, std::size_t begin, std::size_t end, MovingNearest* near) {
   Normal eq;
   const float max_sq = static_cast<float>(s.max_correspondence_m * s.max_correspondence_m);
   const double scale_sq = s.kernel_scale_m * s.kernel_scale_m;
@@ -101,7 +86,7 @@ Normal Accumulate(const PointCloud& source, const TargetCloud& target, const Eig
     const Vec3f p = T * source.points[i];
     std::uint32_t j;
     float sq;
-    if (!NearestFrom(target, p, max_sq, &last[i], &j, &sq)) continue;
+    if (!near[i].NearestWithin(target.index(), p, max_sq, &j, &sq)) continue;
     const Vec3f& n = target.normals()[j];
     if (check_normals && (R * source.normals[i]).dot(n) < s.min_normal_cos) continue;
     AddCorrespondence<kMetric>(eq, p, target.index().points()[j], n, scale_sq);
@@ -110,14 +95,14 @@ Normal Accumulate(const PointCloud& source, const TargetCloud& target, const Eig
 }
 
 Normal BuildNormalEquations(const PointCloud& source, const TargetCloud& target, const Iso3& T,
-                            const IcpSettings& s, std::uint32_t* last) {
+                            const IcpSettings& s, MovingNearest* near) {
   const Eigen::Isometry3f Tf = T.cast<float>();
   Normal eq = tbb::parallel_deterministic_reduce(
       tbb::blocked_range<std::size_t>(0, source.size(), 256), Normal{},
       [&](const tbb::blocked_range<std::size_t>& r, Normal acc) {
         acc += s.metric == IcpMetric::kPointToPlane
-                   ? Accumulate<IcpMetric::kPointToPlane>(source, target, Tf, s, r.begin(), r.end(), last)
-                   : Accumulate<IcpMetric::kPointToPoint>(source, target, Tf, s, r.begin(), r.end(), last);
+                   ? Accumulate<IcpMetric::kPointToPlane>(source, target, Tf, s, r.begin(), r.end(), near)
+                   : Accumulate<IcpMetric::kPointToPoint>(source, target, Tf, s, r.begin(), r.end(), near);
         return acc;
       },
       [](Normal a, const Normal& b) { return a += b; });
@@ -161,9 +146,10 @@ IcpStats Align(const PointCloud& source, const TargetCloud& target, const Iso3& 
   IcpStats stats;
   stats.T_target_source = T_target_source;
   double last_cost = -1;
-  std::vector<std::uint32_t> last_match(source.size(), kNoMatch);
+  // Each source point's search starts from what its last one found (MovingNearest).
+  std::vector<MovingNearest> near(source.size());
   for (; stats.iterations < settings.max_iterations; ++stats.iterations) {
-    const Normal eq = BuildNormalEquations(source, target, stats.T_target_source, settings, last_match.data());
+    const Normal eq = BuildNormalEquations(source, target, stats.T_target_source, settings, near.data());
     stats.correspondences = eq.count;
     if (eq.count < 6) break;  // too few to constrain the pose: keep the last one
     const double cost = eq.cost / static_cast<double>(source.size());

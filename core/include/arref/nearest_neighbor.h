@@ -1,8 +1,10 @@
 // Nearest-neighbour queries over a fixed point set (a nanoflann k-d tree behind a small API).
 #pragma once
 
+#include <array>
 #include <cstdint>
 #include <memory>
+#include <span>
 #include <vector>
 
 #include "arref/geometry.h"
@@ -26,10 +28,37 @@ class PointIndex {
   // Whether any point is closer than sqrt(max_sq_dist): NearestWithin's answer, but the search
   // stops at the first such point instead of looking on for the nearest.
   bool AnyWithin(const Vec3f& query, float max_sq_dist) const;
+  // Every point closer than sqrt(max_sq_dist) into out, in no particular order; *count says how
+  // many. False, with out incomplete, when there are more than out.size() of them.
+  bool AllWithin(const Vec3f& query, float max_sq_dist, std::span<std::uint32_t> out, std::size_t* count) const;
 
  private:
   struct Impl;
   std::unique_ptr<Impl> impl_;
+};
+
+// Nearest-neighbour search for a query that moves a little from one call to the next, as an ICP
+// source point does from one iteration to the next: the same answers as
+// PointIndex::NearestWithin, mostly without the tree. One per query point, not shared between
+// threads.
+class MovingNearest {
+ public:
+  bool NearestWithin(const PointIndex& index, const Vec3f& query, float max_sq_dist, std::uint32_t* i, float* sq_dist);
+
+ private:
+  enum class Answer { kFound, kNone, kUnknown };
+  Answer FromKept(const std::vector<Vec3f>& points, const Vec3f& query, float max_sq_dist, std::uint32_t* i,
+                  float* sq_dist) const;
+
+  static constexpr std::uint32_t kNone = ~std::uint32_t{0};
+  static constexpr std::size_t kCapacity = 32;
+  std::uint32_t last_ = kNone;  // the last call's answer
+  // When there were at most kCapacity of them, every point within radius_ of centre_, the
+  // query's position at the last search of the tree.
+  Vec3f centre_ = Vec3f::Zero();
+  float radius_ = -1.0f;  // < 0: nothing kept
+  std::uint32_t count_ = 0;
+  std::array<std::uint32_t, kCapacity> kept_;
 };
 
 }  // namespace arref

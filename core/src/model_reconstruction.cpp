@@ -56,6 +56,7 @@ struct ExpectedSurfaceMaker::View {
   RangeImage range;
   std::vector<float> incidence;
   std::vector<Eigen::Vector3i> band;  // its TsdfVolume::BandBlocks, when several volumes fuse it
+  PixelMask near_pixels;  // the pixels rendered, when not all (RobotViews)
 };
 
 struct ExpectedSurfaceMaker::Rig {
@@ -139,22 +140,29 @@ ExpectedSurfaceMaker::Rig ExpectedSurfaceMaker::Eyes(const ReconstructionOptions
   return rig;
 }
 
-ExpectedSurfaceMaker::View ExpectedSurfaceMaker::Render(const Rig& rig, std::size_t eye) const {
+ExpectedSurfaceMaker::View ExpectedSurfaceMaker::Render(const Rig& rig, std::size_t eye, const PixelMask* traced) const {
   View view;
-  view.range = parts_->caster.Render(rig.camera, rig.T_base_cameras[eye], rig.max_range, &view.incidence);
+  view.range = parts_->caster.Render(rig.camera, rig.T_base_cameras[eye], rig.max_range, &view.incidence, nullptr, traced);
   return view;
 }
 
 // The robot's images from every eye, kept: a refit in context renders the same robot from the
-// same eyes on every request, only the objects round it change.
+// same eyes on every request, only the objects round it change. Only pixels whose rays reach the
+// band are rendered (the others change no voxel of it, ViewsInContext), and which they are is
+// kept with the images.
 std::shared_ptr<const std::vector<ExpectedSurfaceMaker::View>> ExpectedSurfaceMaker::RobotViews(
     const ReconstructionOptions& o, const Rig& rig) const {
   {
     std::lock_guard lock(parts_->views->mutex);
     if (auto it = parts_->views->kept.find(o); it != parts_->views->kept.end()) return it->second;
   }
-  auto views = std::make_shared<std::vector<View>>();
-  for (std::size_t eye = 0; eye < rig.T_base_cameras.size(); ++eye) views->push_back(Render(rig, eye));
+  auto views = std::make_shared<std::vector<View>>(rig.T_base_cameras.size());
+  const TsdfVolume volume(rig.volume);
+  tbb::parallel_for(std::size_t{0}, views->size(), [&](std::size_t eye) {
+    PixelMask near_pixels = volume.NearPixels(rig.camera, rig.T_base_cameras[eye]);
+    (*views)[eye] = Render(rig, eye, &near_pixels);
+    (*views)[eye].near_pixels = std::move(near_pixels);
+  });
   // Two requests may have rendered the same rig at once: the first one kept wins.
   std::lock_guard lock(parts_->views->mutex);
   return parts_->views->kept.emplace(o, views).first->second;
@@ -185,12 +193,13 @@ std::vector<ExpectedSurfaceMaker::View> ExpectedSurfaceMaker::ViewsInContext(con
   std::vector<View> views(rig.T_base_cameras.size());
   tbb::parallel_for(std::size_t{0}, views.size(), [&](std::size_t a) {
     const Iso3& T_base_camera = rig.T_base_cameras[a];
-    const PixelMask traced = volume.NearPixels(rig.camera, T_base_camera);
     View& view = views[a];
     if (robot_views.empty()) {  // the caster holds robot and objects
+      const PixelMask traced = volume.NearPixels(rig.camera, T_base_camera);
       view.range = context.Render(rig.camera, T_base_camera, rig.max_range, &view.incidence, nullptr, &traced);
       return;
     }
+    const PixelMask& traced = robot_views[a]->near_pixels;
     view.range = robot_views[a]->range;
     view.incidence = robot_views[a]->incidence;
     std::vector<float> context_incidence;

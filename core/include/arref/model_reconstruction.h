@@ -77,7 +77,7 @@ class ExpectedSurfaceMaker {
   explicit ExpectedSurfaceMaker(std::unique_ptr<Parts> parts);
   Rig Eyes(const ReconstructionOptions& options) const;
   std::shared_ptr<const std::vector<View>> RobotViews(const ReconstructionOptions& options, const Rig& rig) const;
-  View Render(const Rig& rig, std::size_t eye) const;
+  View Render(const Rig& rig, std::size_t eye, const std::vector<std::uint8_t>* traced = nullptr) const;  // traced: a PixelMask
   Result<TriangleMesh> Fuse(const Rig& rig, const std::vector<const View*>& robot_views,
                             const RayCaster* context) const;
   std::vector<View> ViewsInContext(const Rig& rig, const std::vector<const View*>& robot_views,

@@ -137,17 +137,13 @@ Iso3 Exp(const Vec6& xi) {
   return T;
 }
 
-}  // namespace
-
-TargetCloud::TargetCloud(PointCloud scene) : normals_(std::move(scene.normals)), index_(std::move(scene.points)) {}
-
-IcpStats Align(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
-               const IcpSettings& settings) {
+// Each source point's search starts from what its last one found (near: one per source point),
+// in this call or an earlier one at another correspondence distance.
+IcpStats AlignFrom(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
+                   const IcpSettings& settings, std::vector<MovingNearest>& near) {
   IcpStats stats;
   stats.T_target_source = T_target_source;
   double last_cost = -1;
-  // Each source point's search starts from what its last one found (MovingNearest).
-  std::vector<MovingNearest> near(source.size());
   for (; stats.iterations < settings.max_iterations; ++stats.iterations) {
     const Normal eq = BuildNormalEquations(source, target, stats.T_target_source, settings, near.data());
     stats.correspondences = eq.count;
@@ -170,14 +166,25 @@ IcpStats Align(const PointCloud& source, const TargetCloud& target, const Iso3& 
   return stats;
 }
 
+}  // namespace
+
+TargetCloud::TargetCloud(PointCloud scene) : normals_(std::move(scene.normals)), index_(std::move(scene.points)) {}
+
+IcpStats Align(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
+               const IcpSettings& settings) {
+  std::vector<MovingNearest> near(source.size());
+  return AlignFrom(source, target, T_target_source, settings, near);
+}
+
 IcpStats AlignCoarseToFine(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
                            const std::vector<double>& distances_m, IcpSettings settings) {
   IcpStats total;
   total.T_target_source = T_target_source;
+  std::vector<MovingNearest> near(source.size());  // a level starts where the last one's searches ended
   for (double d : distances_m) {
     settings.max_correspondence_m = d;
     settings.kernel_scale_m = std::max(0.005, d / 3);  // the kernel tightens with the search radius
-    const IcpStats level = Align(source, target, total.T_target_source, settings);
+    const IcpStats level = AlignFrom(source, target, total.T_target_source, settings, near);
     total.T_target_source = level.T_target_source;
     total.iterations += level.iterations;
     total.converged = level.converged;

@@ -199,6 +199,33 @@ TEST(ExpectedSurface, ObjectsMappedRoundTheRobotHideWhatTheyHid) {
   EXPECT_GT(top, 300);
 }
 
+// A server's voxel follows each request's mesh: the robot images it keeps per eye rig must stay
+// bounded, and a rig whose images were dropped must fuse the same surface when it comes back.
+TEST(ExpectedSurface, KeepsTheRobotImagesOfTheLastRigsOnly) {
+  const TriangleMesh robot = Box(0.4f, 0.4f, 0.8f);
+  auto maker = ExpectedSurfaceMaker::Create(robot, 1);
+  ASSERT_TRUE(maker.ok()) << maker.status().ToString();
+  const Iso3 T_world_base = MakeYawPose(2.0, -1.0, 0.3, 0.7);
+  TriangleMesh scene_world = robot;
+  scene_world.Append(TableInFront());
+  scene_world.Transform(T_world_base);
+  const auto make = [&](double voxel_m) {
+    ReconstructionOptions o;
+    o.voxel_m = voxel_m, o.arc_deg = 120, o.arc_center_deg = 0;
+    return maker->MakeInContext(o, 2000, scene_world, T_world_base, 0.05);
+  };
+  auto first = make(0.030);
+  ASSERT_TRUE(first.ok()) << first.status().ToString();
+  EXPECT_EQ(maker->KeptRigs(), 1u);
+  for (int i = 1; i < 12; ++i) ASSERT_TRUE(make(0.030 + 0.001 * i).ok());
+  EXPECT_EQ(maker->KeptRigs(), 8u);
+  auto again = make(0.030);  // its images were dropped: rendered afresh
+  ASSERT_TRUE(again.ok()) << again.status().ToString();
+  EXPECT_EQ(maker->KeptRigs(), 8u);
+  ASSERT_EQ(again->points.size(), first->points.size());
+  for (std::size_t i = 0; i < first->points.size(); ++i) ASSERT_EQ(again->points[i], first->points[i]) << "point " << i;
+}
+
 // The refit traces only the pixels NearPixels marks; the claim is that no other pixel changes a
 // voxel of a volume kept to the band round the robot. Fused with the other pixels blanked, the
 // mesh must be the same, vertex for vertex. So must it be when the band's blocks are listed

@@ -66,10 +66,35 @@ struct ExpectedSurfaceMaker::Rig {
   TsdfOptions volume;  // that fuses the images
 };
 
-// The robot's images kept per eye rig (RobotViews).
+// The robot's images kept per eye rig (RobotViews), for the rigs used last: the voxel follows
+// each request's mesh, so a server that kept every rig would grow without end.
 struct ExpectedSurfaceMaker::ViewCache {
+  static constexpr std::size_t kRigs = 8;
+  struct Entry {
+    std::shared_ptr<const std::vector<View>> views;
+    std::uint64_t last_use = 0;
+  };
   std::mutex mutex;
-  std::map<ReconstructionOptions, std::shared_ptr<const std::vector<View>>> kept;  // any field moves eyes or images
+  std::map<ReconstructionOptions, Entry> kept;  // any field moves eyes or images
+  std::uint64_t uses = 0;
+
+  std::shared_ptr<const std::vector<View>> Find(const ReconstructionOptions& o) {
+    const auto it = kept.find(o);
+    if (it == kept.end()) return nullptr;
+    it->second.last_use = ++uses;
+    return it->second.views;
+  }
+  // Two requests may have rendered the same rig at once: the first one kept wins.
+  std::shared_ptr<const std::vector<View>> Keep(const ReconstructionOptions& o,
+                                                std::shared_ptr<const std::vector<View>> views) {
+    if (auto found = Find(o)) return found;
+    if (kept.size() >= kRigs)
+      kept.erase(std::min_element(kept.begin(), kept.end(), [](const auto& a, const auto& b) {
+        return a.second.last_use < b.second.last_use;
+      }));
+    kept.emplace(o, Entry{views, ++uses});
+    return views;
+  }
 };
 
 struct ExpectedSurfaceMaker::Parts {
@@ -154,7 +179,7 @@ std::shared_ptr<const std::vector<ExpectedSurfaceMaker::View>> ExpectedSurfaceMa
     const ReconstructionOptions& o, const Rig& rig) const {
   {
     std::lock_guard lock(parts_->views->mutex);
-    if (auto it = parts_->views->kept.find(o); it != parts_->views->kept.end()) return it->second;
+    if (auto found = parts_->views->Find(o)) return found;
   }
   auto views = std::make_shared<std::vector<View>>(rig.T_base_cameras.size());
   const TsdfVolume volume(rig.volume);
@@ -163,9 +188,8 @@ std::shared_ptr<const std::vector<ExpectedSurfaceMaker::View>> ExpectedSurfaceMa
     (*views)[eye] = Render(rig, eye, &near_pixels);
     (*views)[eye].near_pixels = std::move(near_pixels);
   });
-  // Two requests may have rendered the same rig at once: the first one kept wins.
   std::lock_guard lock(parts_->views->mutex);
-  return parts_->views->kept.emplace(o, views).first->second;
+  return parts_->views->Keep(o, std::move(views));
 }
 
 Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const Rig& rig, const std::vector<const View*>& robot_views,
@@ -249,6 +273,11 @@ Result<PointCloud> ExpectedSurfaceMaker::MakeInContext(const ReconstructionOptio
   if (near.empty()) return Sample(options, *caster, nullptr, samples);  // objects that only hide the robot
   const PointIndex context(std::move(near));
   return Sample(options, *caster, &context, samples);
+}
+
+std::size_t ExpectedSurfaceMaker::KeptRigs() const {
+  std::lock_guard lock(parts_->views->mutex);
+  return parts_->views->kept.size();
 }
 
 // Eyes on an arc are the same on every request, so the robot's images from them are kept

@@ -68,6 +68,8 @@ class ExpectedSurfaceMaker {
   Result<PointCloud> MakeInContext(const ReconstructionOptions& options, std::size_t samples,
                                    const TriangleMesh& scene_world, const Iso3& T_world_base,
                                    double clearance_m) const;
+  // How many eye rigs' robot images MakeInContext keeps (at most 8, the ones used last).
+  std::size_t KeptRigs() const;
 
  private:
   struct Parts;

@@ -199,31 +199,36 @@ TEST(ExpectedSurface, ObjectsMappedRoundTheRobotHideWhatTheyHid) {
   EXPECT_GT(top, 300);
 }
 
-// A server's voxel follows each request's mesh: the robot images it keeps per eye rig must stay
-// bounded, and a rig whose images were dropped must fuse the same surface when it comes back.
-TEST(ExpectedSurface, KeepsTheRobotImagesOfTheLastRigsOnly) {
+// The refit traces the robot through its own caster, instanced in the objects' (RayCaster::Create
+// with `also`): every pixel must come out as from one caster built over both meshes, range and
+// incidence, whichever of the two it hits.
+TEST(RayCaster, AnInstanceTracesAsOneSceneOfBoth) {
   const TriangleMesh robot = Box(0.4f, 0.4f, 0.8f);
-  auto maker = ExpectedSurfaceMaker::Create(robot, 1);
-  ASSERT_TRUE(maker.ok()) << maker.status().ToString();
-  const Iso3 T_world_base = MakeYawPose(2.0, -1.0, 0.3, 0.7);
-  TriangleMesh scene_world = robot;
-  scene_world.Append(TableInFront());
-  scene_world.Transform(T_world_base);
-  const auto make = [&](double voxel_m) {
-    ReconstructionOptions o;
-    o.voxel_m = voxel_m, o.arc_deg = 120, o.arc_center_deg = 0;
-    return maker->MakeInContext(o, 2000, scene_world, T_world_base, 0.05);
-  };
-  auto first = make(0.030);
-  ASSERT_TRUE(first.ok()) << first.status().ToString();
-  EXPECT_EQ(maker->KeptRigs(), 1u);
-  for (int i = 1; i < 12; ++i) ASSERT_TRUE(make(0.030 + 0.001 * i).ok());
-  EXPECT_EQ(maker->KeptRigs(), 8u);
-  auto again = make(0.030);  // its images were dropped: rendered afresh
-  ASSERT_TRUE(again.ok()) << again.status().ToString();
-  EXPECT_EQ(maker->KeptRigs(), 8u);
-  ASSERT_EQ(again->points.size(), first->points.size());
-  for (std::size_t i = 0; i < first->points.size(); ++i) ASSERT_EQ(again->points[i], first->points[i]) << "point " << i;
+  const TriangleMesh table = TableInFront();
+  auto robot_caster = RayCaster::Create(robot);
+  TriangleMesh both = robot;
+  both.Append(table);
+  auto one = RayCaster::Create(both);
+  ASSERT_TRUE(robot_caster.ok() && one.ok());
+  auto instanced = RayCaster::Create(table, RayCaster::Build::kForOneUse, *robot_caster);
+  ASSERT_TRUE(instanced.ok()) << instanced.status().ToString();
+  const PinholeCamera camera = PinholeCamera::FromFov(90, 80, 70);
+  std::size_t robot_hits = 0, table_hits = 0;
+  for (int eye = 0; eye < 6; ++eye) {
+    const double azimuth = -0.6 + 0.25 * eye;
+    const Iso3 T_scene_camera = LookAt(Vec3(1.9 * std::cos(azimuth), 1.9 * std::sin(azimuth), 1.2), Vec3(0, 0, 0.4));
+    std::vector<float> want_incidence, got_incidence, robot_incidence;
+    const RangeImage want = one->Render(camera, T_scene_camera, 8.0, &want_incidence);
+    const RangeImage got = instanced->Render(camera, T_scene_camera, 8.0, &got_incidence);
+    const RangeImage robot_only = robot_caster->Render(camera, T_scene_camera, 8.0, &robot_incidence);
+    for (std::size_t i = 0; i < want.size(); ++i) {
+      ASSERT_EQ(got[i], want[i]) << "eye " << eye << ", pixel " << i;
+      ASSERT_EQ(got_incidence[i], want_incidence[i]) << "eye " << eye << ", pixel " << i;
+      if (want[i] > 0) (want[i] == robot_only[i] ? robot_hits : table_hits) += 1;
+    }
+  }
+  EXPECT_GT(robot_hits, 1000u);
+  EXPECT_GT(table_hits, 1000u);
 }
 
 // The refit traces only the pixels NearPixels marks; the claim is that no other pixel changes a

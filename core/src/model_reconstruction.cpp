@@ -5,8 +5,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <map>
-#include <mutex>
 #include <numbers>
 
 #include <tbb/blocked_range.h>
@@ -33,14 +31,6 @@ Status CheckOptions(const ReconstructionOptions& o) {
   return Status::Ok();
 }
 
-// Per pixel the nearer of two renderings of the same view (a scene in two ray casters).
-void NearerOf(const RangeImage& other, const std::vector<float>& other_incidence, RangeImage* range,
-              std::vector<float>* incidence) {
-  for (std::size_t i = 0; i < range->size(); ++i)
-    if (other[i] > 0 && ((*range)[i] <= 0 || other[i] < (*range)[i]))
-      (*range)[i] = other[i], (*incidence)[i] = other_incidence[i];
-}
-
 // The triangles whose bounds overlap the box (a triangle larger than the box is kept too).
 TriangleMesh TrianglesInBox(const TriangleMesh& mesh, const Aabb& box) {
   return KeepTriangles(mesh, [&](const Triangle& t) {
@@ -56,7 +46,6 @@ struct ExpectedSurfaceMaker::View {
   RangeImage range;
   std::vector<float> incidence;
   std::vector<Eigen::Vector3i> band;  // its TsdfVolume::BandBlocks, when several volumes fuse it
-  PixelMask near_pixels;  // the pixels rendered, when not all (RobotViews)
 };
 
 struct ExpectedSurfaceMaker::Rig {
@@ -66,44 +55,12 @@ struct ExpectedSurfaceMaker::Rig {
   TsdfOptions volume;  // that fuses the images
 };
 
-// The robot's images kept per eye rig (RobotViews), for the rigs used last: the voxel follows
-// each request's mesh, so a server that kept every rig would grow without end.
-struct ExpectedSurfaceMaker::ViewCache {
-  static constexpr std::size_t kRigs = 8;
-  struct Entry {
-    std::shared_ptr<const std::vector<View>> views;
-    std::uint64_t last_use = 0;
-  };
-  std::mutex mutex;
-  std::map<ReconstructionOptions, Entry> kept;  // any field moves eyes or images
-  std::uint64_t uses = 0;
-
-  std::shared_ptr<const std::vector<View>> Find(const ReconstructionOptions& o) {
-    const auto it = kept.find(o);
-    if (it == kept.end()) return nullptr;
-    it->second.last_use = ++uses;
-    return it->second.views;
-  }
-  // Two requests may have rendered the same rig at once: the first one kept wins.
-  std::shared_ptr<const std::vector<View>> Keep(const ReconstructionOptions& o,
-                                                std::shared_ptr<const std::vector<View>> views) {
-    if (auto found = Find(o)) return found;
-    if (kept.size() >= kRigs)
-      kept.erase(std::min_element(kept.begin(), kept.end(), [](const auto& a, const auto& b) {
-        return a.second.last_use < b.second.last_use;
-      }));
-    kept.emplace(o, Entry{views, ++uses});
-    return views;
-  }
-};
-
 struct ExpectedSurfaceMaker::Parts {
   TriangleMesh robot_on_floor;
   RayCaster caster;  // of robot_on_floor
   PointIndex robot;  // dense samples of the exact surface: which fused triangles are robot
   Aabb box;
   std::uint64_t seed;
-  std::unique_ptr<ViewCache> views = std::make_unique<ViewCache>();
 };
 
 ExpectedSurfaceMaker::ExpectedSurfaceMaker(std::unique_ptr<Parts> parts) : parts_(std::move(parts)) {}
@@ -165,43 +122,25 @@ ExpectedSurfaceMaker::Rig ExpectedSurfaceMaker::Eyes(const ReconstructionOptions
   return rig;
 }
 
-ExpectedSurfaceMaker::View ExpectedSurfaceMaker::Render(const Rig& rig, std::size_t eye, const PixelMask* traced) const {
+ExpectedSurfaceMaker::View ExpectedSurfaceMaker::Render(const Rig& rig, std::size_t eye) const {
   View view;
-  view.range = parts_->caster.Render(rig.camera, rig.T_base_cameras[eye], rig.max_range, &view.incidence, nullptr, traced);
+  view.range = parts_->caster.Render(rig.camera, rig.T_base_cameras[eye], rig.max_range, &view.incidence);
   return view;
 }
 
-// The robot's images from every eye, kept: a refit in context renders the same robot from the
-// same eyes on every request, only the objects round it change. Only pixels whose rays reach the
-// band are rendered (the others change no voxel of it, ViewsInContext), and which they are is
-// kept with the images.
-std::shared_ptr<const std::vector<ExpectedSurfaceMaker::View>> ExpectedSurfaceMaker::RobotViews(
-    const ReconstructionOptions& o, const Rig& rig) const {
-  {
-    std::lock_guard lock(parts_->views->mutex);
-    if (auto found = parts_->views->Find(o)) return found;
-  }
-  auto views = std::make_shared<std::vector<View>>(rig.T_base_cameras.size());
-  const TsdfVolume volume(rig.volume);
-  tbb::parallel_for(std::size_t{0}, views->size(), [&](std::size_t eye) {
-    PixelMask near_pixels = volume.NearPixels(rig.camera, rig.T_base_cameras[eye]);
-    (*views)[eye] = Render(rig, eye, &near_pixels);
-    (*views)[eye].near_pixels = std::move(near_pixels);
-  });
-  std::lock_guard lock(parts_->views->mutex);
-  return parts_->views->Keep(o, std::move(views));
+// The robot alone: its images and their bands as MakeMany shares them.
+Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const Rig& rig, const std::vector<const View*>& robot_views) const {
+  TsdfVolume volume(rig.volume);
+  for (std::size_t a = 0; a < rig.T_base_cameras.size(); ++a)
+    ARREF_RETURN_IF_ERROR(volume.Integrate(rig.camera, rig.T_base_cameras[a], robot_views[a]->range,
+                                           robot_views[a]->incidence, robot_views[a]->band));
+  return volume.ExtractMesh();
 }
 
-Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const Rig& rig, const std::vector<const View*>& robot_views,
-                                                const RayCaster* context) const {
+// The robot with the objects round it: scene holds both.
+Result<TriangleMesh> ExpectedSurfaceMaker::FuseInContext(const Rig& rig, const RayCaster& scene) const {
   TsdfVolume volume(rig.volume);
-  if (!context) {  // the robot alone: its images and their bands as MakeMany shares them
-    for (std::size_t a = 0; a < rig.T_base_cameras.size(); ++a)
-      ARREF_RETURN_IF_ERROR(volume.Integrate(rig.camera, rig.T_base_cameras[a], robot_views[a]->range,
-                                             robot_views[a]->incidence, robot_views[a]->band));
-    return volume.ExtractMesh();
-  }
-  const std::vector<View> views = ViewsInContext(rig, robot_views, *context, volume);
+  const std::vector<View> views = ViewsInContext(rig, scene, volume);
   for (std::size_t a = 0; a < views.size(); ++a)
     ARREF_RETURN_IF_ERROR(volume.Integrate(rig.camera, rig.T_base_cameras[a], views[a].range, views[a].incidence));
   return volume.ExtractMesh();
@@ -210,25 +149,12 @@ Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const Rig& rig, const std::vecto
 // Every eye's image with the objects, all eyes at once: which pixels to trace depends on the
 // volume's band, not on what earlier eyes allocated in it. Pixels whose rays miss the band
 // change no voxel of it, so they are not traced (exact).
-std::vector<ExpectedSurfaceMaker::View> ExpectedSurfaceMaker::ViewsInContext(const Rig& rig,
-                                                                             const std::vector<const View*>& robot_views,
-                                                                             const RayCaster& context,
+std::vector<ExpectedSurfaceMaker::View> ExpectedSurfaceMaker::ViewsInContext(const Rig& rig, const RayCaster& scene,
                                                                              const TsdfVolume& volume) const {
   std::vector<View> views(rig.T_base_cameras.size());
   tbb::parallel_for(std::size_t{0}, views.size(), [&](std::size_t a) {
-    const Iso3& T_base_camera = rig.T_base_cameras[a];
-    View& view = views[a];
-    if (robot_views.empty()) {  // the caster holds robot and objects
-      const PixelMask traced = volume.NearPixels(rig.camera, T_base_camera);
-      view.range = context.Render(rig.camera, T_base_camera, rig.max_range, &view.incidence, nullptr, &traced);
-      return;
-    }
-    const PixelMask& traced = robot_views[a]->near_pixels;
-    view.range = robot_views[a]->range;
-    view.incidence = robot_views[a]->incidence;
-    std::vector<float> context_incidence;
-    NearerOf(context.Render(rig.camera, T_base_camera, rig.max_range, &context_incidence, &view.range, &traced),
-             context_incidence, &view.range, &view.incidence);
+    const PixelMask traced = volume.NearPixels(rig.camera, rig.T_base_cameras[a]);
+    views[a].range = scene.Render(rig.camera, rig.T_base_cameras[a], rig.max_range, &views[a].incidence, nullptr, &traced);
   });
   return views;
 }
@@ -259,30 +185,15 @@ Result<PointCloud> ExpectedSurfaceMaker::MakeInContext(const ReconstructionOptio
                                                        double clearance_m) const {
   const TriangleMesh context_base = Context(scene_world, T_world_base, clearance_m);
   if (context_base.empty()) return Make(options, samples);
-  // The robot's caster and images from the walks' eyes are kept; the objects get their own
-  // caster, and each pixel sees the nearer. Eyes of the headset's own path have no kept
-  // images, so robot and objects are traced as one scene: once per pixel, not twice.
-  TriangleMesh with_robot;
-  if (!KeepsRobotImages(options)) {
-    with_robot = parts_->robot_on_floor;
-    with_robot.Append(context_base);
-  }
-  auto caster = RayCaster::Create(KeepsRobotImages(options) ? context_base : with_robot, RayCaster::Build::kForOneUse);
+  // Robot and objects are traced as one scene, once per pixel; the robot through the BVH it
+  // keeps (an Embree instance), so only the objects' is built per request.
+  auto caster = RayCaster::Create(context_base, RayCaster::Build::kForOneUse, parts_->caster);
   if (!caster.ok()) return caster.status().WithContext("expected surface in context");
   std::vector<Vec3f> near = FusedPart(context_base, options);
   if (near.empty()) return Sample(options, *caster, nullptr, samples);  // objects that only hide the robot
   const PointIndex context(std::move(near));
   return Sample(options, *caster, &context, samples);
 }
-
-std::size_t ExpectedSurfaceMaker::KeptRigs() const {
-  std::lock_guard lock(parts_->views->mutex);
-  return parts_->views->kept.size();
-}
-
-// Eyes on an arc are the same on every request, so the robot's images from them are kept
-// (RobotViews); eyes of a headset's own path are not.
-bool ExpectedSurfaceMaker::KeepsRobotImages(const ReconstructionOptions& options) { return options.eyes_base.empty(); }
 
 // Points on the objects in the fused band round the robot, where they can border its shell: two
 // per voxel face, so big triangles are covered as well as a headset's small ones.
@@ -308,17 +219,10 @@ TriangleMesh ExpectedSurfaceMaker::Context(const TriangleMesh& scene_world, cons
   });
 }
 
-Result<PointCloud> ExpectedSurfaceMaker::Sample(const ReconstructionOptions& options, const RayCaster& context_caster,
+Result<PointCloud> ExpectedSurfaceMaker::Sample(const ReconstructionOptions& options, const RayCaster& scene,
                                                 const PointIndex* context, std::size_t samples) const {
   ARREF_RETURN_IF_ERROR(CheckOptions(options));
-  const Rig rig = Eyes(options);
-  std::vector<const View*> view_of_eye;  // none: context_caster holds the robot too
-  std::shared_ptr<const std::vector<View>> views;
-  if (KeepsRobotImages(options)) {
-    views = RobotViews(options, rig);
-    for (const View& view : *views) view_of_eye.push_back(&view);
-  }
-  return SampleFused(options, Fuse(rig, view_of_eye, &context_caster), context, samples);
+  return SampleFused(options, FuseInContext(Eyes(options), scene), context, samples);
 }
 
 Result<PointCloud> ExpectedSurfaceMaker::SampleFused(const ReconstructionOptions& options, Result<TriangleMesh> fused,
@@ -372,7 +276,7 @@ std::vector<Result<PointCloud>> ExpectedSurfaceMaker::MakeMany(const std::vector
     const std::size_t r = rig_of_options[i];
     std::vector<const View*> view_of_eye;
     for (std::size_t slot : slot_of_eye[r]) view_of_eye.push_back(&views[slot]);
-    clouds[i] = SampleFused(options[i], Fuse(rigs[r], view_of_eye, nullptr), nullptr, samples);
+    clouds[i] = SampleFused(options[i], Fuse(rigs[r], view_of_eye), nullptr, samples);
   }
   return clouds;
 }

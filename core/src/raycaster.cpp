@@ -65,10 +65,23 @@ RayCaster::~RayCaster() = default;
 
 Result<RayCaster> RayCaster::Create(const TriangleMesh& mesh, Build build) {
   if (mesh.empty()) return Status::FailedPrecondition("ray casting: the scene has no triangles");
-  const RTCBuildQuality quality = build == Build::kForOneUse ? RTC_BUILD_QUALITY_LOW : RTC_BUILD_QUALITY_MEDIUM;
   auto impl = std::make_unique<Impl>();
   impl->device = rtcNewDevice(nullptr);
   if (!impl->device) return Status::Internal("ray casting: cannot create an Embree device");
+  return Build_(std::move(impl), mesh, build, nullptr);
+}
+
+Result<RayCaster> RayCaster::Create(const TriangleMesh& mesh, Build build, const RayCaster& also) {
+  if (mesh.empty()) return Status::FailedPrecondition("ray casting: the scene has no triangles");
+  auto impl = std::make_unique<Impl>();
+  impl->device = also.impl_->device;  // an instanced scene must come from the same device
+  rtcRetainDevice(impl->device);
+  return Build_(std::move(impl), mesh, build, &also);
+}
+
+Result<RayCaster> RayCaster::Build_(std::unique_ptr<Impl> impl, const TriangleMesh& mesh, Build build,
+                                    const RayCaster* also) {
+  const RTCBuildQuality quality = build == Build::kForOneUse ? RTC_BUILD_QUALITY_LOW : RTC_BUILD_QUALITY_MEDIUM;
   impl->scene = rtcNewScene(impl->device);
   rtcSetSceneBuildQuality(impl->scene, quality);
   RTCGeometry geom = rtcNewGeometry(impl->device, RTC_GEOMETRY_TYPE_TRIANGLE);
@@ -82,11 +95,20 @@ Result<RayCaster> RayCaster::Create(const TriangleMesh& mesh, Build build) {
   rtcCommitGeometry(geom);
   rtcAttachGeometry(impl->scene, geom);
   rtcReleaseGeometry(geom);
+  if (also) {
+    RTCGeometry instance = rtcNewGeometry(impl->device, RTC_GEOMETRY_TYPE_INSTANCE);
+    rtcSetGeometryInstancedScene(instance, also->impl_->scene);
+    const float identity[12] = {1, 0, 0, 0, 1, 0, 0, 0, 1, 0, 0, 0};  // 3x4, column major
+    rtcSetGeometryTransform(instance, 0, RTC_FORMAT_FLOAT3X4_COLUMN_MAJOR, identity);
+    rtcCommitGeometry(instance);
+    rtcAttachGeometry(impl->scene, instance);
+    rtcReleaseGeometry(instance);
+  }
   rtcCommitScene(impl->scene);
   if (const RTCError err = rtcGetDeviceError(impl->device); err != RTC_ERROR_NONE)
     return Status::Internal("ray casting: Embree error " + std::to_string(static_cast<int>(err)) +
                             " building a scene of " + std::to_string(mesh.triangles.size()) + " triangles");
-  spdlog::debug("Embree scene with {} triangles", mesh.triangles.size());
+  spdlog::debug("Embree scene with {} triangles{}", mesh.triangles.size(), also ? " and an instance" : "");
   return RayCaster(std::move(impl));
 }
 

@@ -68,31 +68,24 @@ class ExpectedSurfaceMaker {
   Result<PointCloud> MakeInContext(const ReconstructionOptions& options, std::size_t samples,
                                    const TriangleMesh& scene_world, const Iso3& T_world_base,
                                    double clearance_m) const;
-  // How many eye rigs' robot images MakeInContext keeps (at most 8, the ones used last).
-  std::size_t KeptRigs() const;
 
  private:
   struct Parts;
   struct View;
   struct Rig;
-  struct ViewCache;
   explicit ExpectedSurfaceMaker(std::unique_ptr<Parts> parts);
   Rig Eyes(const ReconstructionOptions& options) const;
-  std::shared_ptr<const std::vector<View>> RobotViews(const ReconstructionOptions& options, const Rig& rig) const;
-  View Render(const Rig& rig, std::size_t eye, const std::vector<std::uint8_t>* traced = nullptr) const;  // traced: a PixelMask
-  Result<TriangleMesh> Fuse(const Rig& rig, const std::vector<const View*>& robot_views,
-                            const RayCaster* context) const;
-  std::vector<View> ViewsInContext(const Rig& rig, const std::vector<const View*>& robot_views,
-                                   const RayCaster& context, const TsdfVolume& volume) const;
+  View Render(const Rig& rig, std::size_t eye) const;
+  Result<TriangleMesh> Fuse(const Rig& rig, const std::vector<const View*>& robot_views) const;
+  Result<TriangleMesh> FuseInContext(const Rig& rig, const RayCaster& scene) const;
+  std::vector<View> ViewsInContext(const Rig& rig, const RayCaster& scene, const TsdfVolume& volume) const;
   TsdfOptions Volume(const ReconstructionOptions& options) const;
   Aabb Band(const ReconstructionOptions& options) const;
   TriangleMesh Context(const TriangleMesh& scene_world, const Iso3& T_world_base, double clearance_m) const;
   std::vector<Vec3f> FusedPart(const TriangleMesh& context_base, const ReconstructionOptions& options) const;
   TriangleMesh RobotPart(const TriangleMesh& fused, const PointIndex* context) const;
-  static bool KeepsRobotImages(const ReconstructionOptions& options);
-  // The robot fused with the objects' images (context_caster, which holds the robot too where
-  // its images are not kept) and split from them (context).
-  Result<PointCloud> Sample(const ReconstructionOptions& options, const RayCaster& context_caster,
+  // The robot fused with the objects (scene holds both) and split from them (context).
+  Result<PointCloud> Sample(const ReconstructionOptions& options, const RayCaster& scene,
                             const PointIndex* context, std::size_t samples) const;
   Result<PointCloud> SampleFused(const ReconstructionOptions& options, Result<TriangleMesh> fused,
                                  const PointIndex* context, std::size_t samples) const;

@@ -67,6 +67,10 @@ class RayCaster {
   enum class Build { kForTracing, kForOneUse };
   // The scene is copied into Embree's buffers; the mesh may be dropped afterwards.
   static Result<RayCaster> Create(const TriangleMesh& scene, Build build = Build::kForTracing);
+  // The scene plus everything `also` holds, which is traced through its own BVH as it stands
+  // (an Embree instance): only the scene's BVH is built. Hits are those of one caster holding
+  // both, at the same distances as `also` gives alone. `also` must outlive the result.
+  static Result<RayCaster> Create(const TriangleMesh& scene, Build build, const RayCaster& also);
   RayCaster(RayCaster&&) noexcept;
   RayCaster& operator=(RayCaster&&) noexcept;
   ~RayCaster();
@@ -83,6 +87,8 @@ class RayCaster {
  private:
   struct Impl;
   explicit RayCaster(std::unique_ptr<Impl> impl);
+  static Result<RayCaster> Build_(std::unique_ptr<Impl> impl, const TriangleMesh& mesh, Build build,
+                                  const RayCaster* also);
   std::unique_ptr<Impl> impl_;
 };
 

@@ -68,7 +68,7 @@ Result<RayCaster> RayCaster::Create(const TriangleMesh& mesh, Build build) {
   auto impl = std::make_unique<Impl>();
   impl->device = rtcNewDevice(nullptr);
   if (!impl->device) return Status::Internal("ray casting: cannot create an Embree device");
-  return Build_(std::move(impl), mesh, build, nullptr);
+  return BuildScene(std::move(impl), mesh, build, nullptr);
 }
 
 Result<RayCaster> RayCaster::Create(const TriangleMesh& mesh, Build build, const RayCaster& also) {
@@ -76,10 +76,10 @@ Result<RayCaster> RayCaster::Create(const TriangleMesh& mesh, Build build, const
   auto impl = std::make_unique<Impl>();
   impl->device = also.impl_->device;  // an instanced scene must come from the same device
   rtcRetainDevice(impl->device);
-  return Build_(std::move(impl), mesh, build, &also);
+  return BuildScene(std::move(impl), mesh, build, &also);
 }
 
-Result<RayCaster> RayCaster::Build_(std::unique_ptr<Impl> impl, const TriangleMesh& mesh, Build build,
+Result<RayCaster> RayCaster::BuildScene(std::unique_ptr<Impl> impl, const TriangleMesh& mesh, Build build,
                                     const RayCaster* also) {
   const RTCBuildQuality quality = build == Build::kForOneUse ? RTC_BUILD_QUALITY_LOW : RTC_BUILD_QUALITY_MEDIUM;
   impl->scene = rtcNewScene(impl->device);

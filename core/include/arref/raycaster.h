@@ -87,7 +87,7 @@ class RayCaster {
  private:
   struct Impl;
   explicit RayCaster(std::unique_ptr<Impl> impl);
-  static Result<RayCaster> Build_(std::unique_ptr<Impl> impl, const TriangleMesh& mesh, Build build,
+  static Result<RayCaster> BuildScene(std::unique_ptr<Impl> impl, const TriangleMesh& mesh, Build build,
                                   const RayCaster* also);
   std::unique_ptr<Impl> impl_;
 };

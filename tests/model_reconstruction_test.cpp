@@ -258,7 +258,7 @@ TEST(ExpectedSurface, PixelsOffTheBandChangeNothing) {
     const RangeImage range = caster->Render(camera, T_scene_camera, 8.0, &incidence);
     const PixelMask mask = masked.NearPixels(camera, T_scene_camera);
     std::vector<float> blank_incidence;
-    const RangeImage blanked = caster->Render(camera, T_scene_camera, 8.0, &blank_incidence, nullptr, &mask);
+    const RangeImage blanked = caster->Render(camera, T_scene_camera, 8.0, &blank_incidence, &mask);
     for (std::size_t i = 0; i < mask.size(); ++i) {
       (mask[i] ? traced : skipped) += range[i] > 0;
       if (mask[i]) {

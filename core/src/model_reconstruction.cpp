@@ -154,7 +154,7 @@ std::vector<ExpectedSurfaceMaker::View> ExpectedSurfaceMaker::ViewsInContext(con
   std::vector<View> views(rig.T_base_cameras.size());
   tbb::parallel_for(std::size_t{0}, views.size(), [&](std::size_t a) {
     const PixelMask traced = volume.NearPixels(rig.camera, rig.T_base_cameras[a]);
-    views[a].range = scene.Render(rig.camera, rig.T_base_cameras[a], rig.max_range, &views[a].incidence, nullptr, &traced);
+    views[a].range = scene.Render(rig.camera, rig.T_base_cameras[a], rig.max_range, &views[a].incidence, &traced);
   });
   return views;
 }

@@ -113,8 +113,7 @@ Result<RayCaster> RayCaster::BuildScene(std::unique_ptr<Impl> impl, const Triang
 }
 
 RangeImage RayCaster::Render(const PinholeCamera& camera, const Iso3& T_scene_camera, double max_range_m,
-                             std::vector<float>* incidence, const RangeImage* nearer_than,
-                             const PixelMask* traced) const {
+                             std::vector<float>* incidence, const PixelMask* traced) const {
   RangeImage range(static_cast<std::size_t>(camera.width) * camera.height, 0.0f);
   if (incidence) incidence->assign(range.size(), 0.0f);
   const Eigen::Matrix3d R = T_scene_camera.linear();
@@ -134,10 +133,6 @@ RangeImage RayCaster::Render(const PinholeCamera& camera, const Iso3& T_scene_ca
       rh.ray.dir_z = static_cast<float>(dir.z());
       rh.ray.tnear = 0.0f;
       rh.ray.tfar = static_cast<float>(max_range_m);
-      if (nearer_than) {
-        const float limit = (*nearer_than)[static_cast<std::size_t>(v) * camera.width + u];
-        if (limit > 0) rh.ray.tfar = std::min(rh.ray.tfar, limit);
-      }
       rh.ray.mask = static_cast<unsigned>(-1);  // Embree skips geometry whose mask bits miss the ray's
       rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
       rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;

@@ -76,13 +76,10 @@ class RayCaster {
   ~RayCaster();
 
   // With `incidence`, also |cos| of the angle between each pixel's ray and the surface it hits
-  // (0 where nothing is hit). With `nearer_than` (an image of the same camera), a pixel is hit
-  // only nearer than that image's range where it has one: tracing stops there, which is what
-  // makes overlaying one scene on another's rendering cheap. With `traced`, only the pixels it
-  // marks are traced; the others stay 0.
+  // (0 where nothing is hit). With `traced`, only the pixels it marks are traced; the others
+  // stay 0.
   RangeImage Render(const PinholeCamera& camera, const Iso3& T_scene_camera, double max_range_m,
-                    std::vector<float>* incidence = nullptr, const RangeImage* nearer_than = nullptr,
-                    const PixelMask* traced = nullptr) const;
+                    std::vector<float>* incidence = nullptr, const PixelMask* traced = nullptr) const;
 
  private:
   struct Impl;

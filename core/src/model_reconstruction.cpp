@@ -56,8 +56,7 @@ struct ExpectedSurfaceMaker::Rig {
 };
 
 struct ExpectedSurfaceMaker::Parts {
-  TriangleMesh robot_on_floor;
-  RayCaster caster;  // of robot_on_floor
+  RayCaster caster;  // of the robot on its floor (WithFloor)
   PointIndex robot;  // dense samples of the exact surface: which fused triangles are robot
   Aabb box;
   std::uint64_t seed;
@@ -70,11 +69,10 @@ ExpectedSurfaceMaker::~ExpectedSurfaceMaker() = default;
 
 Result<ExpectedSurfaceMaker> ExpectedSurfaceMaker::Create(const TriangleMesh& robot_base, std::uint64_t seed) {
   if (robot_base.empty()) return Status::InvalidArgument("expected surface: the robot has no geometry");
-  TriangleMesh robot_on_floor = WithFloor(robot_base);
-  auto caster = RayCaster::Create(robot_on_floor);
+  auto caster = RayCaster::Create(WithFloor(robot_base));
   if (!caster.ok()) return caster.status().WithContext("expected surface");
   return ExpectedSurfaceMaker(std::make_unique<Parts>(
-      Parts{std::move(robot_on_floor), std::move(*caster), PointIndex(SampleSurface(robot_base, 20000, seed).points), BoundsOf(robot_base.vertices),
+      Parts{std::move(*caster), PointIndex(SampleSurface(robot_base, 20000, seed).points), BoundsOf(robot_base.vertices),
             seed}));
 }
 

@@ -80,7 +80,7 @@ Result<RayCaster> RayCaster::Create(const TriangleMesh& mesh, Build build, const
 }
 
 Result<RayCaster> RayCaster::BuildScene(std::unique_ptr<Impl> impl, const TriangleMesh& mesh, Build build,
-                                    const RayCaster* also) {
+                                        const RayCaster* also) {
   const RTCBuildQuality quality = build == Build::kForOneUse ? RTC_BUILD_QUALITY_LOW : RTC_BUILD_QUALITY_MEDIUM;
   impl->scene = rtcNewScene(impl->device);
   rtcSetSceneBuildQuality(impl->scene, quality);

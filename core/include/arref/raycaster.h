@@ -85,7 +85,7 @@ class RayCaster {
   struct Impl;
   explicit RayCaster(std::unique_ptr<Impl> impl);
   static Result<RayCaster> BuildScene(std::unique_ptr<Impl> impl, const TriangleMesh& mesh, Build build,
-                                  const RayCaster* also);
+                                      const RayCaster* also);
   std::unique_ptr<Impl> impl_;
 };
 

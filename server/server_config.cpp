@@ -1,5 +1,6 @@
 #include "server_config.h"
 
+#include <fmt/format.h>
 #include <yaml-cpp/yaml.h>
 
 #include <filesystem>
@@ -96,7 +97,8 @@ Status ReadLimits(const YAML::Node& n, ServerLimits& l) {
 Status ReadRegistration(const YAML::Node& n, ServerConfig& c) {
   ARREF_RETURN_IF_ERROR(CheckKeys(n, "registration", {"method", "crop_radius_m", "scene_samples", "model_samples",
                                                       "icp_max_correspondence_m", "icp_max_iterations",
-                                                      "inlier_threshold_m", "sample_seed", "model_cache_entries"}));
+                                                      "inlier_threshold_m", "sample_seed", "model_cache_entries",
+                                                      "tracking_error_m", "tracking_error_deg"}));
   RegistrationOptions& o = c.registration;
   if (n["method"]) {
     auto method = ParseMethod(As<std::string>(n["method"], "method"));
@@ -111,6 +113,8 @@ Status ReadRegistration(const YAML::Node& n, ServerConfig& c) {
   Read(n, "inlier_threshold_m", o.inlier_threshold_m);
   Read(n, "sample_seed", o.sample_seed);
   Read(n, "model_cache_entries", c.model_cache_entries);
+  Read(n, "tracking_error_m", o.arref_icp.tracking_error.position_m);
+  Read(n, "tracking_error_deg", o.arref_icp.tracking_error.orientation_deg);
   return Status::Ok();
 }
 
@@ -178,6 +182,11 @@ Status ValidateServerConfig(const ServerConfig& c) {
   if (c.limits.max_message_bytes < 64) return Status::InvalidArgument("limits.max_message_bytes must be >= 64");
   if (c.limits.max_sessions < 1) return Status::InvalidArgument("limits.max_sessions must be >= 1");
   if (c.registration.model_samples < 3) return Status::InvalidArgument("registration.model_samples must be >= 3");
+  const TrackingError& e = c.registration.arref_icp.tracking_error;
+  if (!(e.position_m >= 0 && e.position_m < 1) || !(e.orientation_deg >= 0 && e.orientation_deg < 30))
+    return Status::InvalidArgument(fmt::format(
+        "registration.tracking_error_m ({}) must be in [0, 1) and tracking_error_deg ({}) in [0, 30)", e.position_m,
+        e.orientation_deg));
   return Status::Ok();
 }
 

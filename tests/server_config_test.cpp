@@ -21,11 +21,14 @@ TEST(ServerConfig, ShippedDefaultLoadsAndValidates) {
 TEST(ServerConfig, ValuesAreReadWithTheirTypes) {
   auto config = ParseServerConfig(
       "server: {port: 8000, workers: 3, idle_timeout_s: 2.5}\n"
+      "registration: {tracking_error_m: 0.002, tracking_error_deg: 0.5}\n"
       "robots: [{id: kr5, urdf: builtin, default_joints: {joint_a2: -0.5}}]\n", "/tmp");
   ASSERT_TRUE(config.ok()) << config.status().ToString();
   EXPECT_EQ(config->port, 8000);
   EXPECT_EQ(config->workers, 3);
   EXPECT_DOUBLE_EQ(config->idle_timeout_s, 2.5);
+  EXPECT_DOUBLE_EQ(config->registration.arref_icp.tracking_error.position_m, 0.002);
+  EXPECT_DOUBLE_EQ(config->registration.arref_icp.tracking_error.orientation_deg, 0.5);
   ASSERT_EQ(config->robots.size(), 1u);
   EXPECT_DOUBLE_EQ(config->robots[0].default_joints.at("joint_a2"), -0.5);
 }
@@ -51,6 +54,10 @@ TEST(ServerConfig, BadValuesAreNamed) {
     ASSERT_FALSE(config.ok()) << c.yaml;
     EXPECT_NE(config.status().ToString().find(c.expected), std::string::npos) << c.yaml << config.status().ToString();
   }
+  auto tracking = ParseServerConfig("registration: {tracking_error_deg: -1}\nrobots: [{id: a, urdf: builtin}]\n", "/tmp");
+  ASSERT_TRUE(tracking.ok()) << tracking.status().ToString();
+  const Status invalid = ValidateServerConfig(*tracking);
+  EXPECT_NE(invalid.ToString().find("tracking_error_deg (-1)"), std::string::npos) << invalid.ToString();
   auto config = ParseServerConfig("server:\n  port: abc\n", "/tmp");
   EXPECT_NE(config.status().ToString().find("line 2, column 9"), std::string::npos) << config.status().ToString();
 }

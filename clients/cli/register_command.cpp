@@ -232,6 +232,15 @@ void AddRegisterCommand(CLI::App& app, int* exit_code) {
                 "arref-icp: skip the refit with the objects mapped round the robot (faster; a table near the robot then "
                 "pulls the fit a few mm)")
       ->default_str("context");
+  cmd->add_option("--tracking-error", o.arref_icp.tracking_error.position_m,
+                  "arref-icp: the headset's head-position error per view (sigma per axis), m; its last polish weighs "
+                  "each point by how far the tracking error moves the mesh there (0: equal weights)")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 1.0));
+  cmd->add_option("--tracking-error-deg", o.arref_icp.tracking_error.orientation_deg,
+                  "arref-icp: the headset's head-orientation error per view (sigma per axis), degrees")
+      ->capture_default_str()
+      ->check(CLI::Range(0.0, 30.0));
   cmd->add_option("--expected-voxel", o.arref_icp.expected_voxel_m,
                   "arref-icp: voxel of the headset mesh, m (default: the cropped mesh's median edge length)");
   cmd->add_option("--sample-seed", o.sample_seed, "Seed of the surface sampling")->capture_default_str();

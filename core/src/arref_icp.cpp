@@ -16,6 +16,7 @@
 #include <memory>
 #include <numbers>
 #include <optional>
+#include <span>
 
 #include <tbb/parallel_for.h>
 
@@ -25,6 +26,7 @@
 #include "arref/registration.h"
 #include "arref/sampling.h"
 #include "arref/spatial_mesh.h"
+#include "arref/tracking_error.h"
 #include "step_timer.h"
 
 namespace arref {
@@ -106,13 +108,13 @@ Candidate Approach(const PointCloud& approach, const TargetCloud& target, const 
 }
 
 Candidate Refine(const PointCloud& fine, const TargetCloud& target, const Candidate& start, const ArrefIcpParams& p,
-                 const std::vector<double>& levels) {
+                 const std::vector<double>& levels, std::span<const float> weights = {}) {
   IcpSettings s = YawOnly(p, 15);
-  IcpStats st = AlignCoarseToFine(fine, target, start.T_world_base, levels, s);
+  IcpStats st = AlignCoarseToFine(fine, target, start.T_world_base, levels, s, weights);
   int iterations = start.iterations + st.iterations;
   if (p.final_six_dof) {
     s.yaw_only = false;
-    st = AlignCoarseToFine(fine, target, st.T_target_source, {0.012}, s);
+    st = AlignCoarseToFine(fine, target, st.T_target_source, {0.012}, s, weights);
     iterations += st.iterations;
   }
   return {st.T_target_source, ScoreAlignment(fine, target, st.T_target_source, 0.02, 0.5).inlier_fraction, iterations};
@@ -120,8 +122,9 @@ Candidate Refine(const PointCloud& fine, const TargetCloud& target, const Candid
 
 // A refined pose polished with another surface: the pose moves, its score stays, the
 // iterations add up.
-Candidate Polish(const PointCloud& surface, const TargetCloud& target, const Candidate& best, const ArrefIcpParams& p) {
-  const Candidate c = Refine(surface, target, {best.T_world_base, best.score, 0}, p, kPolishLevels);
+Candidate Polish(const PointCloud& surface, const TargetCloud& target, const Candidate& best, const ArrefIcpParams& p,
+                 std::span<const float> weights = {}) {
+  const Candidate c = Refine(surface, target, {best.T_world_base, best.score, 0}, p, kPolishLevels, weights);
   return {c.T_world_base, best.score, best.iterations + c.iterations};
 }
 
@@ -217,7 +220,11 @@ Candidate RefineInContext(const MethodInput& in, int walk, const TargetCloud& ta
   *fitted = std::make_shared<const PointCloud>(Thinned(*surface, in.options.arref_icp.context_points));
   stages->push_back("in-context");
   const std::optional<TargetCloud> dense = DenseTargetNear(in, **fitted, best.T_world_base);
-  return Polish(**fitted, dense ? *dense : target, best, in.options.arref_icp);
+  // The surface's points weighed by how far the headset's tracking error moves them, as seen
+  // from the eyes it was fused from (tracking_error.h).
+  const std::vector<float> weights =
+      TrackingErrorWeights(**fitted, eyes.empty() ? RobotSide::RefitEyes(walk) : eyes, in.options.arref_icp.tracking_error);
+  return Polish(**fitted, dense ? *dense : target, best, in.options.arref_icp, weights);
 }
 
 // Which surface explains the scene: a fused headset mesh is matched by the expected surface,

@@ -8,6 +8,7 @@
 
 #include <cmath>
 #include <limits>
+#include <stdexcept>
 
 namespace arref {
 namespace {
@@ -51,18 +52,18 @@ double Weight(double r_sq, double scale_sq, double* cost) {
 // point-to-plane ICP", eq. 8, in Lie-algebra form. Point-to-point (Besl & McKay 1992): the
 // three residuals along x, y and z, one robust weight on their norm |p' - q|.
 template <IcpMetric kMetric>
-void AddCorrespondence(Normal& eq, const Vec3f& p, const Vec3f& q, const Vec3f& n, double scale_sq) {
+void AddCorrespondence(Normal& eq, const Vec3f& p, const Vec3f& q, const Vec3f& n, double scale_sq, double weight) {
   const Eigen::Vector3d pd = p.cast<double>();
   if constexpr (kMetric == IcpMetric::kPointToPlane) {
     const double r = n.dot(p - q);
     Vec6 J;
     J << n.cast<double>(), pd.cross(n.cast<double>());
-    AddPair(eq, r, J, Weight(r * r, scale_sq, &eq.cost));
+    AddPair(eq, r, J, weight * Weight(r * r, scale_sq, &eq.cost));
   } else {
     // Stacked over x, y and z, J = [I, -[p']x]: J^T J and J^T e in closed form (the upper
     // triangle is what BuildNormalEquations keeps).
     const Eigen::Vector3d e = (p - q).cast<double>();
-    const double w = Weight(e.squaredNorm(), scale_sq, &eq.cost);
+    const double w = weight * Weight(e.squaredNorm(), scale_sq, &eq.cost);
     Eigen::Matrix3d skew;
     skew << 0, -pd.z(), pd.y(), pd.z(), 0, -pd.x(), -pd.y(), pd.x(), 0;
     eq.H.topLeftCorner<3, 3>().diagonal().array() += w;
@@ -74,9 +75,17 @@ void AddCorrespondence(Normal& eq, const Vec3f& p, const Vec3f& q, const Vec3f& 
   ++eq.count;
 }
 
+// A source point's own weight (AlignCoarseToFine's weights), times its robust one.
+struct Source {
+  const PointCloud& cloud;
+  std::span<const float> weights;
+  double Weight(std::size_t i) const { return weights.empty() ? 1.0 : weights[i]; }
+};
+
 template <IcpMetric kMetric>
-Normal Accumulate(const PointCloud& source, const TargetCloud& target, const Eigen::Isometry3f& T,
+Normal Accumulate(const Source& src, const TargetCloud& target, const Eigen::Isometry3f& T,
                   const IcpSettings& s, std::size_t begin, std::size_t end, MovingNearest* near) {
+  const PointCloud& source = src.cloud;
   Normal eq;
   const float max_sq = static_cast<float>(s.max_correspondence_m * s.max_correspondence_m);
   const double scale_sq = s.kernel_scale_m * s.kernel_scale_m;
@@ -89,16 +98,16 @@ Normal Accumulate(const PointCloud& source, const TargetCloud& target, const Eig
     if (!near[i].NearestWithin(target.index(), p, max_sq, &j, &sq)) continue;
     const Vec3f& n = target.normals()[j];
     if (check_normals && (R * source.normals[i]).dot(n) < s.min_normal_cos) continue;
-    AddCorrespondence<kMetric>(eq, p, target.index().points()[j], n, scale_sq);
+    AddCorrespondence<kMetric>(eq, p, target.index().points()[j], n, scale_sq, src.Weight(i));
   }
   return eq;
 }
 
-Normal BuildNormalEquations(const PointCloud& source, const TargetCloud& target, const Iso3& T,
+Normal BuildNormalEquations(const Source& source, const TargetCloud& target, const Iso3& T,
                             const IcpSettings& s, MovingNearest* near) {
   const Eigen::Isometry3f Tf = T.cast<float>();
   Normal eq = tbb::parallel_deterministic_reduce(
-      tbb::blocked_range<std::size_t>(0, source.size(), 256), Normal{},
+      tbb::blocked_range<std::size_t>(0, source.cloud.size(), 256), Normal{},
       [&](const tbb::blocked_range<std::size_t>& r, Normal acc) {
         acc += s.metric == IcpMetric::kPointToPlane
                    ? Accumulate<IcpMetric::kPointToPlane>(source, target, Tf, s, r.begin(), r.end(), near)
@@ -139,7 +148,7 @@ Iso3 Exp(const Vec6& xi) {
 
 // Each source point's search starts from what its last one found (near: one per source point),
 // in this call or an earlier one at another correspondence distance.
-IcpStats AlignFrom(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
+IcpStats AlignFrom(const Source& source, const TargetCloud& target, const Iso3& T_target_source,
                    const IcpSettings& settings, std::vector<MovingNearest>& near) {
   IcpStats stats;
   stats.T_target_source = T_target_source;
@@ -148,7 +157,7 @@ IcpStats AlignFrom(const PointCloud& source, const TargetCloud& target, const Is
     const Normal eq = BuildNormalEquations(source, target, stats.T_target_source, settings, near.data());
     stats.correspondences = eq.count;
     if (eq.count < 6) break;  // too few to constrain the pose: keep the last one
-    const double cost = eq.cost / static_cast<double>(source.size());
+    const double cost = eq.cost / static_cast<double>(source.cloud.size());
     if (last_cost > 0 && std::abs(last_cost - cost) < settings.converged_cost_ratio * last_cost) {
       stats.converged = true;  // the pose the cost was measured at is kept; no further step
       break;
@@ -173,18 +182,21 @@ TargetCloud::TargetCloud(PointCloud scene) : normals_(std::move(scene.normals)),
 IcpStats Align(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
                const IcpSettings& settings) {
   std::vector<MovingNearest> near(source.size());
-  return AlignFrom(source, target, T_target_source, settings, near);
+  return AlignFrom({source, {}}, target, T_target_source, settings, near);
 }
 
 IcpStats AlignCoarseToFine(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
-                           const std::vector<double>& distances_m, IcpSettings settings) {
+                           const std::vector<double>& distances_m, IcpSettings settings,
+                           std::span<const float> weights) {
+  if (!weights.empty() && weights.size() != source.size())
+    throw std::invalid_argument("AlignCoarseToFine: one weight per source point");
   IcpStats total;
   total.T_target_source = T_target_source;
   std::vector<MovingNearest> near(source.size());  // a level starts where the last one's searches ended
   for (double d : distances_m) {
     settings.max_correspondence_m = d;
     settings.kernel_scale_m = std::max(0.005, d / 3);  // the kernel tightens with the search radius
-    const IcpStats level = AlignFrom(source, target, total.T_target_source, settings, near);
+    const IcpStats level = AlignFrom({source, weights}, target, total.T_target_source, settings, near);
     total.T_target_source = level.T_target_source;
     total.iterations += level.iterations;
     total.converged = level.converged;

@@ -97,14 +97,10 @@ Aabb ExpectedSurfaceMaker::Band(const ReconstructionOptions& options) const {
 }
 
 // The eyes of a walk: one camera on an arc round the robot, each looking at its centre.
-ExpectedSurfaceMaker::Rig ExpectedSurfaceMaker::Eyes(const ReconstructionOptions& o) const {
-  const TsdfOptions tsdf = Volume(o);
-  const double image_width_m = 2 * o.distance_m * std::tan(o.fov_horizontal_deg * std::numbers::pi / 360);
-  const int width = std::clamp(static_cast<int>(std::ceil(image_width_m / o.voxel_m * o.pixels_per_voxel)), 64, 2048);
-  Rig rig{PinholeCamera::FromFov(width, width * 9 / 10, o.fov_horizontal_deg),
-          o.distance_m + 2 * tsdf.crop_radius_m + o.eye_height_m, {}, tsdf};
-  for (const auto& eye : o.eyes_base) rig.T_base_cameras.push_back(LookAt(Vec3(eye[0], eye[1], eye[2]), tsdf.crop_center));
-  if (!o.eyes_base.empty()) return rig;
+std::vector<Vec3> EyePositions(const ReconstructionOptions& o) {
+  std::vector<Vec3> eyes;
+  for (const auto& eye : o.eyes_base) eyes.emplace_back(eye[0], eye[1], eye[2]);
+  if (!o.eyes_base.empty()) return eyes;
   // A full circle has no ends: its eyes are spread without doubling the first.
   const double step = o.arc_deg >= 360 ? 360.0 / o.azimuths : o.arc_deg / std::max(1, o.azimuths - 1);
   const double first = o.arc_deg >= 360 ? 0.0 : -o.arc_deg / 2;
@@ -114,9 +110,18 @@ ExpectedSurfaceMaker::Rig ExpectedSurfaceMaker::Eyes(const ReconstructionOptions
     double degrees = std::fmod(o.arc_center_deg + first + step * a, 360.0);
     if (degrees < 0) degrees += 360.0;
     const double azimuth = degrees * std::numbers::pi / 180;
-    rig.T_base_cameras.push_back(
-        LookAt(Vec3(o.distance_m * std::cos(azimuth), o.distance_m * std::sin(azimuth), o.eye_height_m), tsdf.crop_center));
+    eyes.emplace_back(o.distance_m * std::cos(azimuth), o.distance_m * std::sin(azimuth), o.eye_height_m);
   }
+  return eyes;
+}
+
+ExpectedSurfaceMaker::Rig ExpectedSurfaceMaker::Eyes(const ReconstructionOptions& o) const {
+  const TsdfOptions tsdf = Volume(o);
+  const double image_width_m = 2 * o.distance_m * std::tan(o.fov_horizontal_deg * std::numbers::pi / 360);
+  const int width = std::clamp(static_cast<int>(std::ceil(image_width_m / o.voxel_m * o.pixels_per_voxel)), 64, 2048);
+  Rig rig{PinholeCamera::FromFov(width, width * 9 / 10, o.fov_horizontal_deg),
+          o.distance_m + 2 * tsdf.crop_radius_m + o.eye_height_m, {}, tsdf};
+  for (const Vec3& eye : EyePositions(o)) rig.T_base_cameras.push_back(LookAt(eye, tsdf.crop_center));
   return rig;
 }
 

@@ -119,6 +119,8 @@ Result<std::shared_ptr<const ExpectedSurfaceMaker>> RobotSide::Maker() const {
   return maker_;
 }
 
+std::vector<Vec3> RobotSide::RefitEyes(int walk) { return EyePositions(RefitOptions(0.0, walk)); }
+
 Result<PointCloud> RobotSide::ExpectedInContext(double voxel_m, int walk, const TriangleMesh& scene_world,
                                                 const Iso3& T_world_base, const std::vector<Vec3>& eyes_base) const {
   ARREF_RETURN_IF_ERROR(CheckWalk(walk));

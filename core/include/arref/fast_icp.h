@@ -5,6 +5,7 @@
 #pragma once
 
 #include <cstdint>
+#include <span>
 #include <vector>
 
 #include "arref/geometry.h"
@@ -61,9 +62,11 @@ struct IcpStats {
 IcpStats Align(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
                const IcpSettings& settings);
 
-// Runs Align once per correspondence distance, coarse to fine.
+// Runs Align once per correspondence distance, coarse to fine. weights: one per source point,
+// multiplying its robust weight (as TrackingErrorWeights gives them); empty: all equal.
 IcpStats AlignCoarseToFine(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
-                           const std::vector<double>& distances_m, IcpSettings settings);
+                           const std::vector<double>& distances_m, IcpSettings settings,
+                           std::span<const float> weights = {});
 
 struct AlignmentScore {
   double inlier_fraction = 0.0;  // source points with a normal-compatible target point within the threshold

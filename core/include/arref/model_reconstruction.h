@@ -47,6 +47,9 @@ struct ReconstructionOptions {
   auto operator<=>(const ReconstructionOptions&) const = default;  // field by field (caches key on it)
 };
 
+// Where options put the eyes (base frame): eyes_base when given, else on the arc.
+std::vector<Vec3> EyePositions(const ReconstructionOptions& options);
+
 // Makes expected surfaces of one posed robot: the ray caster of the robot on its floor and the
 // index of its exact surface are built once and shared by every voxel size and walk.
 class ExpectedSurfaceMaker {

@@ -85,6 +85,8 @@ class RobotSide {
   // eyes_base: where the headset really was (base frame); empty: the walk's eyes.
   Result<PointCloud> ExpectedInContext(double voxel_m, int walk, const TriangleMesh& scene_world,
                                        const Iso3& T_world_base, const std::vector<Vec3>& eyes_base = {}) const;
+  // The eyes ExpectedInContext fuses from when it is given none (base frame).
+  static std::vector<Vec3> RefitEyes(int walk);
 
  private:
   RobotSide(TriangleMesh mesh_base, PointCloud samples, std::uint64_t seed);

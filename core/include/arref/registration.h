@@ -11,6 +11,7 @@
 #include "arref/geometry.h"
 #include "arref/sampling.h"
 #include "arref/status.h"
+#include "arref/tracking_error.h"
 
 namespace arref {
 
@@ -46,6 +47,9 @@ struct ArrefIcpParams {
   // facet or fewer the nearest one often lies on a neighbouring facet and tilts the residual's
   // plane. 0: polish on the request's own scene samples. See docs/engine.md.
   double context_target_density = 4.0;
+  // The last polish weighs each point by the variance this error leaves along its normal, seen
+  // from the refit's eyes (tracking_error.h). position_m 0: equal weights. See docs/engine.md.
+  TrackingError tracking_error;
   int refine_top = 2;
   bool final_six_dof = false;      // a last 6-DoF step would absorb tilt of the headset world (robots stand upright)
   // Fit the robot as the headset would mesh it (model_reconstruction.h) rather than its exact

@@ -19,6 +19,7 @@
 #include "arref/sampling.h"
 #include "arref/sim/cell_simulator.h"
 #include "arref/spatial_mesh.h"
+#include "arref/tracking_error.h"
 
 namespace arref {
 namespace {
@@ -156,6 +157,14 @@ void BM_ExpectedInContext(benchmark::State& state) {
   for (auto _ : state) benchmark::DoNotOptimize(f.robot->ExpectedInContext(f.voxel_m, 0, f.cropped, f.T_world_base));
 }
 
+// The last polish's weights (tracking_error.h) for its 5,000 points from the refit's 24 eyes.
+void BM_TrackingErrorWeights(benchmark::State& state) {
+  const Fixture& f = Cell();
+  const PointCloud surface = Thinned(*f.robot->ExpectedInContext(f.voxel_m, 0, f.cropped, f.T_world_base), 5000);
+  const std::vector<Vec3> eyes = RobotSide::RefitEyes(0);
+  for (auto _ : state) benchmark::DoNotOptimize(TrackingErrorWeights(surface, eyes, {}));
+}
+
 // What a new joint state costs arref-icp before its first request: the posed robot and its
 // expected surfaces (all round and the eight walks) at the headset's voxel.
 void BM_NewJointState(benchmark::State& state) {
@@ -192,6 +201,7 @@ BENCHMARK(BM_Request)->Args({1, 1, 0})->Args({1, 0, 0})->Args({0, 1, 0})->Args({
 BENCHMARK(BM_NewJointState)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_NewJointStateOneByOne)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ExpectedInContext)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_TrackingErrorWeights)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ArrefIteration)->ArgsProduct({{2000, 5000}, {1, 2}, {0, 1}})->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ArrefTenIterations)->ArgsProduct({{2000, 5000}, {1, 2}})->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_PclIteration)->Arg(2000)->Arg(5000)->Unit(benchmark::kMillisecond);

@@ -33,6 +33,7 @@ struct BenchArgs {
   double walk_arc_deg = 0.0;
   double seed_max_offset = 0.0;
   double pose_jitter = -1;
+  double tracking_error = -1;
   std::string only;  // comma-separated subset of sweep, perturb, scenes
   std::string command_line;
 };
@@ -68,6 +69,7 @@ int Run(const BenchArgs& args) {
   config.head_path = args.head_path;
   config.variation.walk_arc_deg = args.walk_arc_deg;
   config.variation.pose_jitter_m = args.pose_jitter;
+  config.tracking_error_m = args.tracking_error;
   std::error_code ec;
   std::filesystem::create_directories(config.out_dir, ec);
   if (ec) return Fail(Status::IoError("--out " + config.out_dir + ": " + ec.message()));
@@ -132,6 +134,10 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
       ->check(CLI::Range(30.0, 360.0));
   cmd->add_option("--pose-jitter", args->pose_jitter,
                   "Scenes experiment: head-tracking error sigma, m (default 0.004, 0.3 deg; 0: a perfectly tracked headset)")
+      ->check(CLI::Range(0.0, 0.1));
+  cmd->add_option("--tracking-error", args->tracking_error,
+                  "Scenes experiment: the head-tracking error sigma arref-icp assumes, m, with 75 deg per m as "
+                  "--pose-jitter (default 0.004, 0.3 deg; 0: equal weights in its last polish)")
       ->check(CLI::Range(0.0, 0.1));
   cmd->add_option("--only", args->only, "Run only these experiments: sweep, perturb, scenes (comma-separated)");
   cmd->callback([args, exit_code, cmd] {

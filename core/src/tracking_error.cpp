@@ -1,5 +1,8 @@
 #include "arref/tracking_error.h"
 
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_for.h>
+
 #include <algorithm>
 #include <limits>
 #include <numbers>
@@ -16,6 +19,22 @@ double ViewVariance(const Vec3& p, const Vec3& n, const Vec3& e, double var_posi
   return var_position + var_orientation * (p - e).cross(n).squaredNorm();
 }
 
+// Point i's weight, 0 when no eye faces it.
+float Weight(const PointCloud& surface, std::size_t i, const std::vector<Vec3>& eyes, double var_position,
+             double var_orientation) {
+  const Vec3 p = surface.points[i].cast<double>(), n = surface.normals[i].cast<double>();
+  double sum = 0;
+  int views = 0;
+  for (const Vec3& e : eyes) {
+    const Vec3 d = e - p;
+    if (n.dot(d) < kFacingCos * d.norm()) continue;
+    sum += ViewVariance(p, n, e, var_position, var_orientation);
+    ++views;
+  }
+  // Independent views averaged: the variance of their mean is sum / views^2.
+  return views > 0 ? static_cast<float>(var_position * views * views / sum) : 0.0f;
+}
+
 }  // namespace
 
 std::vector<float> TrackingErrorWeights(const PointCloud& surface, const std::vector<Vec3>& eyes,
@@ -25,19 +44,9 @@ std::vector<float> TrackingErrorWeights(const PointCloud& surface, const std::ve
   const double var_orientation = rad * rad;
   if (eyes.empty() || !surface.has_normals() || !(var_position > 0)) return {};
   std::vector<float> weights(surface.size(), 0.0f);
-  for (std::size_t i = 0; i < surface.size(); ++i) {
-    const Vec3 p = surface.points[i].cast<double>(), n = surface.normals[i].cast<double>();
-    double sum = 0;
-    int views = 0;
-    for (const Vec3& e : eyes) {
-      const Vec3 d = e - p;
-      if (n.dot(d) < kFacingCos * d.norm()) continue;
-      sum += ViewVariance(p, n, e, var_position, var_orientation);
-      ++views;
-    }
-    // Independent views averaged: the variance of their mean is sum / views^2.
-    if (views > 0) weights[i] = static_cast<float>(var_position * views * views / sum);
-  }
+  tbb::parallel_for(tbb::blocked_range<std::size_t>(0, surface.size(), 256), [&](const auto& range) {
+    for (std::size_t i = range.begin(); i < range.end(); ++i) weights[i] = Weight(surface, i, eyes, var_position, var_orientation);
+  });
   float smallest = std::numeric_limits<float>::max();
   for (float w : weights)
     if (w > 0) smallest = std::min(smallest, w);

@@ -44,6 +44,9 @@ struct Config {
   int scene_seeds = 3;  // per cell
   CellVariation variation;
   bool head_path = false;  // each request sends where its cell's user walked (RegistrationOptions::head_path_world)
+  // >= 0: the head-tracking error arref-icp assumes (ArrefIcpParams::tracking_error), m, with
+  // 75 degrees per metre as sim::SetPoseJitter; 0: equal weights. Default: the method's own.
+  double tracking_error_m = -1;
 };
 
 // A simulated cell with everything a run needs.

@@ -211,6 +211,8 @@ Status ScenesExperiment(const RobotModel& robot, const Config& config, Tables* t
       for (int s = 0; s < static_cast<int>(cell.sim.seeds.size()); ++s) {
         jobs.push_back(SeedJob("scenes", method, size, "defaults", cell, s));
         if (config.head_path) jobs.back().options.head_path_world = cell.sim.head_path_world;
+        if (config.tracking_error_m >= 0)
+          jobs.back().options.arref_icp.tracking_error = {config.tracking_error_m, 75.0 * config.tracking_error_m};
       }
   spdlog::info("bench: methods on each kind of scene: {} runs", jobs.size());
   const std::vector<Run> runs = Execute(jobs, config.jobs);

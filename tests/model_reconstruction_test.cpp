@@ -284,6 +284,47 @@ TEST(ExpectedSurface, PixelsOffTheBandChangeNothing) {
   }
 }
 
+// IntegrateAll updates each block with all its images in one task; the voxels must take the
+// same updates in the same order as one Integrate per image gives them, so the mesh is the same
+// vertex for vertex, including blocks that only later eyes add.
+TEST(ExpectedSurface, IntegrateAllFusesAsOneImageAtATime) {
+  TriangleMesh scene = Box(0.4f, 0.4f, 0.8f);
+  scene.Append(TableInFront());
+  auto caster = RayCaster::Create(scene);
+  ASSERT_TRUE(caster.ok()) << caster.status().ToString();
+  const std::vector<Vec3f> robot = SampleSurface(Box(0.4f, 0.4f, 0.8f), 20000, 1).points;
+  TsdfOptions o;
+  o.voxel_m = kVoxel, o.truncation_m = 3 * kVoxel, o.crop_center = Vec3(0, 0, 0.4), o.crop_radius_m = 2.0;
+  o.near_points = &robot, o.near_margin_m = o.truncation_m + 2 * kVoxel, o.single_precision = true;
+  const PinholeCamera camera = PinholeCamera::FromFov(90, 80, 70);
+  std::vector<Iso3> eyes;
+  std::vector<RangeImage> ranges(8);
+  std::vector<std::vector<float>> incidences(8);
+  TsdfVolume one_by_one(o), at_once(o);
+  std::size_t blocks_after_first = 0;
+  for (int eye = 0; eye < 8; ++eye) {
+    const double azimuth = -1.4 + 0.4 * eye;  // round to the far side: later eyes add blocks
+    eyes.push_back(LookAt(Vec3(1.9 * std::cos(azimuth), 1.9 * std::sin(azimuth), 1.6), Vec3(0, 0, 0.4)));
+    ranges[eye] = caster->Render(camera, eyes.back(), 8.0, &incidences[eye]);
+    ASSERT_TRUE(one_by_one.Integrate(camera, eyes.back(), ranges[eye], incidences[eye]).ok());
+    if (eye == 0) blocks_after_first = one_by_one.block_count();
+  }
+  std::vector<TsdfVolume::Image> images;
+  for (int eye = 0; eye < 8; ++eye) images.push_back({eyes[eye], &ranges[eye], &incidences[eye]});
+  ASSERT_TRUE(at_once.IntegrateAll(camera, images).ok());
+  EXPECT_GT(one_by_one.block_count(), blocks_after_first + 10) << "later eyes add blocks";
+  ASSERT_EQ(at_once.block_count(), one_by_one.block_count());
+  const TriangleMesh a = one_by_one.ExtractMesh(), b = at_once.ExtractMesh();
+  EXPECT_GT(a.triangles.size(), 500u);
+  ASSERT_EQ(a.vertices.size(), b.vertices.size());
+  for (std::size_t i = 0; i < a.vertices.size(); ++i) ASSERT_EQ(a.vertices[i], b.vertices[i]) << "vertex " << i;
+  EXPECT_EQ(a.triangles, b.triangles);
+  const std::vector<float> short_incidence(3, 1.0f);
+  images.back().incidence = &short_incidence;
+  const Status bad = TsdfVolume(o).IntegrateAll(camera, images);
+  EXPECT_EQ(bad.code(), StatusCode::kInvalidArgument) << bad.ToString();
+}
+
 // The volume's help to BandBlocks steps a pixel only when [r - trunc, r + trunc] along its ray
 // reaches the depths of a near block not yet allocated. Walls of every depth through the band,
 // seen from two eyes: the helped search must allocate exactly the blocks that stepping every

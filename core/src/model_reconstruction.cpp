@@ -144,8 +144,9 @@ Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const Rig& rig, const std::vecto
 Result<TriangleMesh> ExpectedSurfaceMaker::FuseInContext(const Rig& rig, const RayCaster& scene) const {
   TsdfVolume volume(rig.volume);
   const std::vector<View> views = ViewsInContext(rig, scene, volume);
-  for (std::size_t a = 0; a < views.size(); ++a)
-    ARREF_RETURN_IF_ERROR(volume.Integrate(rig.camera, rig.T_base_cameras[a], views[a].range, views[a].incidence));
+  std::vector<TsdfVolume::Image> images;
+  for (std::size_t a = 0; a < views.size(); ++a) images.push_back({rig.T_base_cameras[a], &views[a].range, &views[a].incidence});
+  ARREF_RETURN_IF_ERROR(volume.IntegrateAll(rig.camera, images));
   return volume.ExtractMesh();
 }
 

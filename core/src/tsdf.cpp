@@ -204,6 +204,28 @@ Status TsdfVolume::Integrate(const PinholeCamera& camera, const Iso3& T_volume_c
   return Status::Ok();
 }
 
+// Blocks are allocated image by image, as Integrate does (which blocks an image adds depends on
+// which are there, not on their voxels). Then each block takes, in order, the images from the
+// one that added it on: the same updates in the same order as Integrate's.
+Status TsdfVolume::IntegrateAll(const PinholeCamera& camera, const std::vector<Image>& images) {
+  std::vector<std::size_t> first_image;  // per block, the image that allocated it
+  first_image.resize(blocks_.size(), 0);
+  std::vector<Iso3> T_camera_volume;
+  for (std::size_t a = 0; a < images.size(); ++a) {
+    const Image& image = images[a];
+    if (image.incidence->size() != image.range->size())
+      return Status::InvalidArgument("TSDF: incidence image size differs from range");
+    ARREF_RETURN_IF_ERROR(Allocate(BandBlocks(options_, camera, image.T_volume_camera, *image.range, this)));
+    first_image.resize(blocks_.size(), a);
+    T_camera_volume.push_back(image.T_volume_camera.inverse());
+  }
+  tbb::parallel_for(std::size_t{0}, blocks_.size(), [&](std::size_t i) {
+    for (std::size_t a = first_image[i]; a < images.size(); ++a)
+      UpdateBlock(blocks_[i], camera, T_camera_volume[a], *images[a].range, *images[a].incidence);
+  });
+  return Status::Ok();
+}
+
 // Collected per row in parallel, merged in row order so block order (and the mesh) is
 // deterministic.
 std::vector<Eigen::Vector3i> TsdfVolume::BandBlocks(const TsdfOptions& options, const PinholeCamera& camera,

@@ -49,6 +49,16 @@ class TsdfVolume {
   Status Integrate(const PinholeCamera& camera, const Iso3& T_volume_camera, const RangeImage& range,
                    const std::vector<float>& incidence, const std::vector<Eigen::Vector3i>& band);
 
+  // One image as Integrate takes it.
+  struct Image {
+    Iso3 T_volume_camera;
+    const RangeImage* range = nullptr;
+    const std::vector<float>* incidence = nullptr;
+  };
+  // Fuses the images in order, bit for bit as one Integrate per image would. Each block is
+  // updated by all its images in one task, while it is in cache, not once per image.
+  Status IntegrateAll(const PinholeCamera& camera, const std::vector<Image>& images);
+
   // The blocks within the truncation band of an image's measured pixels and the crop, each
   // once, in the order Integrate allocates them. With `allocating`, only those it would add
   // (near and not yet there), tested in parallel: after the first views nearly every block is.

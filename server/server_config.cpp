@@ -183,9 +183,9 @@ Status ValidateServerConfig(const ServerConfig& c) {
   if (c.limits.max_sessions < 1) return Status::InvalidArgument("limits.max_sessions must be >= 1");
   if (c.registration.model_samples < 3) return Status::InvalidArgument("registration.model_samples must be >= 3");
   const TrackingError& e = c.registration.arref_icp.tracking_error;
-  if (!(e.position_m >= 0 && e.position_m < 1) || !(e.orientation_deg >= 0 && e.orientation_deg < 30))
+  if (!(e.position_m >= 0 && e.position_m <= 1) || !(e.orientation_deg >= 0 && e.orientation_deg <= 30))
     return Status::InvalidArgument(fmt::format(
-        "registration.tracking_error_m ({}) must be in [0, 1) and tracking_error_deg ({}) in [0, 30)", e.position_m,
+        "registration.tracking_error_m ({}) must be in [0, 1] and tracking_error_deg ({}) in [0, 30]", e.position_m,
         e.orientation_deg));
   return Status::Ok();
 }

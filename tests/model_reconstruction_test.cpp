@@ -231,6 +231,22 @@ TEST(RayCaster, AnInstanceTracesAsOneSceneOfBoth) {
   EXPECT_GT(table_hits, 1000u);
 }
 
+// A TSDF kept to the band round the robot's points, as the refit's (one pixel per voxel aside).
+TsdfOptions BandRoundRobot(const std::vector<Vec3f>* robot) {
+  TsdfOptions o;
+  o.voxel_m = kVoxel, o.truncation_m = 3 * kVoxel, o.crop_center = Vec3(0, 0, 0.4), o.crop_radius_m = 2.0;
+  o.near_points = robot, o.near_margin_m = o.truncation_m + 2 * kVoxel, o.single_precision = true;
+  return o;
+}
+
+// got's mesh is want, vertex for vertex and triangle for triangle.
+void ExpectSameMesh(const TriangleMesh& want, const TsdfVolume& got) {
+  const TriangleMesh b = got.ExtractMesh();
+  ASSERT_EQ(want.vertices.size(), b.vertices.size());
+  for (std::size_t i = 0; i < want.vertices.size(); ++i) ASSERT_EQ(want.vertices[i], b.vertices[i]) << "vertex " << i;
+  EXPECT_EQ(want.triangles, b.triangles);
+}
+
 // The refit traces only the pixels NearPixels marks; the claim is that no other pixel changes a
 // voxel of a volume kept to the band round the robot. Fused with the other pixels blanked, the
 // mesh must be the same, vertex for vertex. So must it be when the band's blocks are listed
@@ -245,9 +261,7 @@ TEST(ExpectedSurface, PixelsOffTheBandChangeNothing) {
   auto caster = RayCaster::Create(scene);
   ASSERT_TRUE(caster.ok()) << caster.status().ToString();
   const std::vector<Vec3f> robot = SampleSurface(Box(0.4f, 0.4f, 0.8f), 20000, 1).points;
-  TsdfOptions o;
-  o.voxel_m = kVoxel, o.truncation_m = 3 * kVoxel, o.crop_center = Vec3(0, 0, 0.4), o.crop_radius_m = 2.0;
-  o.near_points = &robot, o.near_margin_m = o.truncation_m + 2 * kVoxel, o.single_precision = true;
+  const TsdfOptions o = BandRoundRobot(&robot);
   TsdfVolume all(o), masked(o), unaided(o);
   const PinholeCamera camera = PinholeCamera::FromFov(90, 80, 70);
   std::size_t skipped = 0, traced = 0;
@@ -277,10 +291,7 @@ TEST(ExpectedSurface, PixelsOffTheBandChangeNothing) {
   EXPECT_GT(a.triangles.size(), 500u);
   for (const TsdfVolume* other : {&masked, &unaided}) {
     EXPECT_EQ(other->block_count(), all.block_count());
-    const TriangleMesh b = other->ExtractMesh();
-    ASSERT_EQ(a.vertices.size(), b.vertices.size());
-    for (std::size_t i = 0; i < a.vertices.size(); ++i) ASSERT_EQ(a.vertices[i], b.vertices[i]) << "vertex " << i;
-    EXPECT_EQ(a.triangles, b.triangles);
+    ExpectSameMesh(a, *other);
   }
 }
 
@@ -293,9 +304,7 @@ TEST(ExpectedSurface, IntegrateAllFusesAsOneImageAtATime) {
   auto caster = RayCaster::Create(scene);
   ASSERT_TRUE(caster.ok()) << caster.status().ToString();
   const std::vector<Vec3f> robot = SampleSurface(Box(0.4f, 0.4f, 0.8f), 20000, 1).points;
-  TsdfOptions o;
-  o.voxel_m = kVoxel, o.truncation_m = 3 * kVoxel, o.crop_center = Vec3(0, 0, 0.4), o.crop_radius_m = 2.0;
-  o.near_points = &robot, o.near_margin_m = o.truncation_m + 2 * kVoxel, o.single_precision = true;
+  const TsdfOptions o = BandRoundRobot(&robot);
   const PinholeCamera camera = PinholeCamera::FromFov(90, 80, 70);
   std::vector<Iso3> eyes;
   std::vector<RangeImage> ranges(8);
@@ -314,11 +323,9 @@ TEST(ExpectedSurface, IntegrateAllFusesAsOneImageAtATime) {
   ASSERT_TRUE(at_once.IntegrateAll(camera, images).ok());
   EXPECT_GT(one_by_one.block_count(), blocks_after_first + 10) << "later eyes add blocks";
   ASSERT_EQ(at_once.block_count(), one_by_one.block_count());
-  const TriangleMesh a = one_by_one.ExtractMesh(), b = at_once.ExtractMesh();
+  const TriangleMesh a = one_by_one.ExtractMesh();
   EXPECT_GT(a.triangles.size(), 500u);
-  ASSERT_EQ(a.vertices.size(), b.vertices.size());
-  for (std::size_t i = 0; i < a.vertices.size(); ++i) ASSERT_EQ(a.vertices[i], b.vertices[i]) << "vertex " << i;
-  EXPECT_EQ(a.triangles, b.triangles);
+  ExpectSameMesh(a, at_once);
   const std::vector<float> short_incidence(3, 1.0f);
   images.back().incidence = &short_incidence;
   const Status bad = TsdfVolume(o).IntegrateAll(camera, images);
@@ -331,9 +338,7 @@ TEST(ExpectedSurface, IntegrateAllFusesAsOneImageAtATime) {
 // pixel finds, after each eye.
 TEST(ExpectedSurface, BandSearchFindsEveryBlockItsRaysReach) {
   const std::vector<Vec3f> robot = SampleSurface(Box(0.4f, 0.4f, 0.8f), 20000, 1).points;
-  TsdfOptions o;
-  o.voxel_m = kVoxel, o.truncation_m = 3 * kVoxel, o.crop_center = Vec3(0, 0, 0.4), o.crop_radius_m = 2.0;
-  o.near_points = &robot, o.near_margin_m = o.truncation_m + 2 * kVoxel, o.single_precision = true;
+  const TsdfOptions o = BandRoundRobot(&robot);
   const PinholeCamera camera = PinholeCamera::FromFov(90, 80, 70);
   const Iso3 T_first = LookAt(Vec3(1.9, 0, 1.6), Vec3(0, 0, 0.4));
   const Iso3 T_second = LookAt(Vec3(0.3, 1.8, 1.2), Vec3(0, 0, 0.4));

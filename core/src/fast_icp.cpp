@@ -79,7 +79,7 @@ void AddCorrespondence(Normal& eq, const Vec3f& p, const Vec3f& q, const Vec3f& 
 struct Source {
   const PointCloud& cloud;
   std::span<const float> weights;
-  double Weight(std::size_t i) const { return weights.empty() ? 1.0 : weights[i]; }
+  double WeightOf(std::size_t i) const { return weights.empty() ? 1.0 : weights[i]; }
 };
 
 template <IcpMetric kMetric>
@@ -98,7 +98,7 @@ Normal Accumulate(const Source& src, const TargetCloud& target, const Eigen::Iso
     if (!near[i].NearestWithin(target.index(), p, max_sq, &j, &sq)) continue;
     const Vec3f& n = target.normals()[j];
     if (check_normals && (R * source.normals[i]).dot(n) < s.min_normal_cos) continue;
-    AddCorrespondence<kMetric>(eq, p, target.index().points()[j], n, scale_sq, src.Weight(i));
+    AddCorrespondence<kMetric>(eq, p, target.index().points()[j], n, scale_sq, src.WeightOf(i));
   }
   return eq;
 }
@@ -157,6 +157,8 @@ IcpStats AlignFrom(const Source& source, const TargetCloud& target, const Iso3& 
     const Normal eq = BuildNormalEquations(source, target, stats.T_target_source, settings, near.data());
     stats.correspondences = eq.count;
     if (eq.count < 6) break;  // too few to constrain the pose: keep the last one
+    // The stop watches the robust cost unweighted: a source's own weights shape the step, and
+    // the test only asks whether the fit still changes.
     const double cost = eq.cost / static_cast<double>(source.cloud.size());
     if (last_cost > 0 && std::abs(last_cost - cost) < settings.converged_cost_ratio * last_cost) {
       stats.converged = true;  // the pose the cost was measured at is kept; no further step

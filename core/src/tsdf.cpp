@@ -208,13 +208,13 @@ Status TsdfVolume::Integrate(const PinholeCamera& camera, const Iso3& T_volume_c
 // which are there, not on their voxels). Then each block takes, in order, the images from the
 // one that added it on: the same updates in the same order as Integrate's.
 Status TsdfVolume::IntegrateAll(const PinholeCamera& camera, const std::vector<Image>& images) {
-  std::vector<std::size_t> first_image;  // per block, the image that allocated it
-  first_image.resize(blocks_.size(), 0);
+  for (const Image& image : images)
+    if (image.incidence->size() != image.range->size())
+      return Status::InvalidArgument("TSDF: incidence image size differs from range");
+  std::vector<std::size_t> first_image(blocks_.size(), 0);  // per block, the image that allocated it
   std::vector<Iso3> T_camera_volume;
   for (std::size_t a = 0; a < images.size(); ++a) {
     const Image& image = images[a];
-    if (image.incidence->size() != image.range->size())
-      return Status::InvalidArgument("TSDF: incidence image size differs from range");
     ARREF_RETURN_IF_ERROR(Allocate(BandBlocks(options_, camera, image.T_volume_camera, *image.range, this)));
     first_image.resize(blocks_.size(), a);
     T_camera_volume.push_back(image.T_volume_camera.inverse());

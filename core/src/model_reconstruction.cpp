@@ -134,9 +134,10 @@ ExpectedSurfaceMaker::View ExpectedSurfaceMaker::Render(const Rig& rig, std::siz
 // The robot alone: its images and their bands as MakeMany shares them.
 Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const Rig& rig, const std::vector<const View*>& robot_views) const {
   TsdfVolume volume(rig.volume);
+  std::vector<TsdfVolume::Image> images;
   for (std::size_t a = 0; a < rig.T_base_cameras.size(); ++a)
-    ARREF_RETURN_IF_ERROR(volume.Integrate(rig.camera, rig.T_base_cameras[a], robot_views[a]->range,
-                                           robot_views[a]->incidence, robot_views[a]->band));
+    images.push_back({rig.T_base_cameras[a], &robot_views[a]->range, &robot_views[a]->incidence, &robot_views[a]->band});
+  ARREF_RETURN_IF_ERROR(volume.IntegrateAll(rig.camera, images));
   return volume.ExtractMesh();
 }
 

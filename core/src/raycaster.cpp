@@ -64,7 +64,6 @@ RayCaster& RayCaster::operator=(RayCaster&&) noexcept = default;
 RayCaster::~RayCaster() = default;
 
 Result<RayCaster> RayCaster::Create(const TriangleMesh& mesh, Build build) {
-  if (mesh.empty()) return Status::FailedPrecondition("ray casting: the scene has no triangles");
   auto impl = std::make_unique<Impl>();
   impl->device = rtcNewDevice(nullptr);
   if (!impl->device) return Status::Internal("ray casting: cannot create an Embree device");
@@ -72,7 +71,6 @@ Result<RayCaster> RayCaster::Create(const TriangleMesh& mesh, Build build) {
 }
 
 Result<RayCaster> RayCaster::Create(const TriangleMesh& mesh, Build build, const RayCaster& also) {
-  if (mesh.empty()) return Status::FailedPrecondition("ray casting: the scene has no triangles");
   auto impl = std::make_unique<Impl>();
   impl->device = also.impl_->device;  // an instanced scene must come from the same device
   rtcRetainDevice(impl->device);
@@ -81,6 +79,7 @@ Result<RayCaster> RayCaster::Create(const TriangleMesh& mesh, Build build, const
 
 Result<RayCaster> RayCaster::BuildScene(std::unique_ptr<Impl> impl, const TriangleMesh& mesh, Build build,
                                         const RayCaster* also) {
+  if (mesh.empty()) return Status::FailedPrecondition("ray casting: the scene has no triangles");
   const RTCBuildQuality quality = build == Build::kForOneUse ? RTC_BUILD_QUALITY_LOW : RTC_BUILD_QUALITY_MEDIUM;
   impl->scene = rtcNewScene(impl->device);
   rtcSetSceneBuildQuality(impl->scene, quality);

@@ -190,23 +190,17 @@ Eigen::Vector3i TsdfVolume::BlockOf(const Vec3& p, double voxel_m) {
 
 Status TsdfVolume::Integrate(const PinholeCamera& camera, const Iso3& T_volume_camera, const RangeImage& range,
                              const std::vector<float>& incidence) {
-  return Integrate(camera, T_volume_camera, range, incidence, BandBlocks(options_, camera, T_volume_camera, range, this));
+  return IntegrateAll(camera, {{T_volume_camera, &range, &incidence}});
 }
 
 Status TsdfVolume::Integrate(const PinholeCamera& camera, const Iso3& T_volume_camera, const RangeImage& range,
                              const std::vector<float>& incidence, const std::vector<Eigen::Vector3i>& band) {
-  if (incidence.size() != range.size()) return Status::InvalidArgument("TSDF: incidence image size differs from range");
-  ARREF_RETURN_IF_ERROR(Allocate(band));
-  const Iso3 T_camera_volume = T_volume_camera.inverse();
-  // Each block is updated by one task, so the result does not depend on scheduling.
-  tbb::parallel_for(std::size_t{0}, blocks_.size(),
-                    [&](std::size_t i) { UpdateBlock(blocks_[i], camera, T_camera_volume, range, incidence); });
-  return Status::Ok();
+  return IntegrateAll(camera, {{T_volume_camera, &range, &incidence, &band}});
 }
 
 // Blocks are allocated image by image, as Integrate does (which blocks an image adds depends on
 // which are there, not on their voxels). Then each block takes, in order, the images from the
-// one that added it on: the same updates in the same order as Integrate's.
+// one that added it on, in one task: the same updates in the same order as one call per image.
 Status TsdfVolume::IntegrateAll(const PinholeCamera& camera, const std::vector<Image>& images) {
   for (const Image& image : images)
     if (image.incidence->size() != image.range->size())
@@ -215,7 +209,8 @@ Status TsdfVolume::IntegrateAll(const PinholeCamera& camera, const std::vector<I
   std::vector<Iso3> T_camera_volume;
   for (std::size_t a = 0; a < images.size(); ++a) {
     const Image& image = images[a];
-    ARREF_RETURN_IF_ERROR(Allocate(BandBlocks(options_, camera, image.T_volume_camera, *image.range, this)));
+    ARREF_RETURN_IF_ERROR(Allocate(image.band ? *image.band
+                                              : BandBlocks(options_, camera, image.T_volume_camera, *image.range, this)));
     first_image.resize(blocks_.size(), a);
     T_camera_volume.push_back(image.T_volume_camera.inverse());
   }

@@ -54,6 +54,7 @@ class TsdfVolume {
     Iso3 T_volume_camera;
     const RangeImage* range = nullptr;
     const std::vector<float>* incidence = nullptr;
+    const std::vector<Eigen::Vector3i>* band = nullptr;  // its BandBlocks if known, else found here
   };
   // Fuses the images in order, bit for bit as one Integrate per image would. Each block is
   // updated by all its images in one task, while it is in cache, not once per image.

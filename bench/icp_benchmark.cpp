@@ -11,15 +11,15 @@
 #include <memory>
 #include <utility>
 
-#include "arref/builtin.h"
-#include "arref/fast_icp.h"
-#include "arref/model_reconstruction.h"
-#include "arref/model_visibility.h"
-#include "arref/pipeline.h"
-#include "arref/sampling.h"
+#include "arref/base/builtin.h"
+#include "arref/icp/fast_icp.h"
+#include "arref/fusion/model_reconstruction.h"
+#include "arref/fusion/model_visibility.h"
+#include "arref/pipeline/pipeline.h"
+#include "arref/scene/sampling.h"
 #include "arref/sim/cell_simulator.h"
-#include "arref/spatial_mesh.h"
-#include "arref/tracking_error.h"
+#include "arref/scene/spatial_mesh.h"
+#include "arref/fusion/tracking_error.h"
 
 namespace arref {
 namespace {

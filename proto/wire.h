@@ -8,10 +8,10 @@
 #include <string>
 #include <vector>
 
-#include "arref/frames.h"
-#include "arref/geometry.h"
-#include "arref/spatial_mesh.h"
-#include "arref/status.h"
+#include "arref/base/frames.h"
+#include "arref/base/geometry.h"
+#include "arref/scene/spatial_mesh.h"
+#include "arref/base/status.h"
 #include "arref/v1/arref.pb.h"
 
 namespace arref::wire {

@@ -5,7 +5,7 @@
 
 #include <algorithm>
 
-#include "arref/pipeline.h"
+#include "arref/pipeline/pipeline.h"
 
 namespace arref::server {
 namespace {

@@ -12,10 +12,10 @@
 #include <string>
 #include <vector>
 
-#include "arref/geometry.h"
-#include "arref/pipeline.h"
-#include "arref/robot_model.h"
-#include "arref/status.h"
+#include "arref/base/geometry.h"
+#include "arref/pipeline/pipeline.h"
+#include "arref/robot/robot_model.h"
+#include "arref/base/status.h"
 #include "server_config.h"
 
 namespace arref::server {

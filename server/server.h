@@ -5,7 +5,7 @@
 #include <cstdint>
 #include <memory>
 
-#include "arref/status.h"
+#include "arref/base/status.h"
 #include "server_config.h"
 
 namespace arref::server {

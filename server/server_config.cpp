@@ -10,7 +10,7 @@
 #include <sstream>
 #include <type_traits>
 
-#include "arref/builtin.h"
+#include "arref/base/builtin.h"
 
 namespace arref::server {
 namespace {

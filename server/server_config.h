@@ -5,9 +5,9 @@
 #include <string>
 #include <vector>
 
-#include "arref/pipeline.h"
-#include "arref/robot_model.h"
-#include "arref/status.h"
+#include "arref/pipeline/pipeline.h"
+#include "arref/robot/robot_model.h"
+#include "arref/base/status.h"
 
 namespace arref::server {
 

@@ -20,7 +20,7 @@
 #include <string>
 #include <vector>
 
-#include "arref/spatial_mesh.h"
+#include "arref/scene/spatial_mesh.h"
 #include "job_scheduler.h"
 #include "robot_registry.h"
 #include "server_config.h"

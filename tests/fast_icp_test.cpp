@@ -9,9 +9,9 @@
 #include <span>
 #include <stdexcept>
 
-#include "arref/fast_icp.h"
-#include "arref/metrics.h"
-#include "arref/pipeline.h"
+#include "arref/icp/fast_icp.h"
+#include "arref/scene/metrics.h"
+#include "arref/pipeline/pipeline.h"
 #include "robot_surface_scene.h"
 
 namespace arref {

@@ -2,7 +2,7 @@
 
 #include <random>
 
-#include "arref/frames.h"
+#include "arref/base/frames.h"
 
 namespace arref {
 namespace {

@@ -7,9 +7,11 @@
 #include <cmath>
 #include <random>
 
-#include "arref/metrics.h"
-#include "arref/pipeline.h"
-#include "arref/registration.h"
+#include "arref/scene/metrics.h"
+#include "arref/pipeline/pipeline.h"
+#include "arref/pipeline/registration.h"
+#include "arref/baselines/baselines.h"
+#include "arref/scene/sampling.h"
 #include "robot_surface_scene.h"
 
 namespace arref {
@@ -17,6 +19,19 @@ namespace {
 
 using testing::MakeRobotSurfaceScene;
 using testing::RobotSurfaceScene;
+
+// A registry method run straight on the robot-surface scene, as the pipeline would call it.
+Result<RegistrationOutput> RunMethod(Method method, const RobotSurfaceScene& c, const Iso3& seed,
+                                     const RegistrationOptions& options) {
+  const MethodInfo* info = FindMethod(method);
+  if (!info) return Status::NotFound("method not built in");
+  const TargetCloud target(c.scene_world);
+  return info->run(MethodInput{.model_base = c.model_base,
+                               .scene_world = c.scene_world,
+                               .scene_target = target,
+                               .T_world_seed = seed,
+                               .options = options});
+}
 
 class GlobalMethods : public ::testing::TestWithParam<const char*> {};
 
@@ -28,7 +43,7 @@ TEST_P(GlobalMethods, FindTheRobotFarFromTheSeed) {
   ASSERT_TRUE(method.ok());
   const Iso3 seed = c.T_world_base * MakeYawPose(0.3, 0.2, 0.0, 2.5);  // 0.36 m and 143 degrees off
   const auto t0 = std::chrono::steady_clock::now();
-  auto out = MethodInfoOf(*method).run(MethodInput{c.model_base, c.scene_world, seed, options});
+  auto out = RunMethod(*method, c, seed, options);
   const double s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
   ASSERT_TRUE(out.ok()) << out.status().ToString();
   const PoseError e = ComparePoses(out->T_world_base, c.T_world_base, c.model_base.points);
@@ -61,7 +76,7 @@ TEST(Segmentation, ReportsARobotTouchingAnotherObject) {
     c.scene_world.normals.push_back((c.T_world_base.linear() * on_sphere).cast<float>());
   }
   RegistrationOptions options;
-  auto out = MethodInfoOf(Method::kSuper4pcs).run(MethodInput{c.model_base, c.scene_world, c.T_world_base, options});
+  auto out = RunMethod(Method::kSuper4pcs, c, c.T_world_base, options);
   ASSERT_FALSE(out.ok());
   EXPECT_EQ(out.status().code(), StatusCode::kFailedPrecondition);
   EXPECT_NE(out.status().message().find("touches other objects"), std::string::npos) << out.status().ToString();
@@ -72,9 +87,32 @@ TEST(Super4pcs, RejectsBadParameters) {
   RegistrationOptions options;
   options.segmentation.enabled = false;
   options.super4pcs.overlap = 0;
-  auto out = MethodInfoOf(Method::kSuper4pcs).run(MethodInput{c.model_base, c.scene_world, c.T_world_base, options});
+  auto out = RunMethod(Method::kSuper4pcs, c, c.T_world_base, options);
   ASSERT_FALSE(out.ok());
   EXPECT_NE(out.status().message().find("overlap"), std::string::npos) << out.status().ToString();
+}
+
+TEST(Mls, SmoothsNoise) {
+  // A 1x1 quad at z=0 and a 2x2 quad at z=1.
+  TriangleMesh quads;
+  quads.vertices = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0}, {0, 1, 0}, {0, 0, 1}, {2, 0, 1}, {2, 2, 1}, {0, 2, 1}};
+  quads.triangles = {{0, 1, 2}, {0, 2, 3}, {4, 5, 6}, {4, 6, 7}};
+  PointCloud c = SampleSurface(quads, 5000, 1);
+  std::mt19937_64 rng(2);
+  std::normal_distribution<float> noise(0, 0.005f);
+  for (auto& p : c.points) p.z() += noise(rng);
+  auto smoothed = MlsResample(c, MlsOptions{.search_radius_m = 0.1});
+  ASSERT_TRUE(smoothed.ok()) << smoothed.status().ToString();
+  double before = 0, after = 0;
+  for (const auto& p : c.points) before += std::pow(p.z() - std::round(p.z()), 2);
+  for (const auto& p : smoothed->points) after += std::pow(p.z() - std::round(p.z()), 2);
+  EXPECT_LT(std::sqrt(after / smoothed->size()), 0.5 * std::sqrt(before / c.size()));
+  MlsOptions up{.search_radius_m = 0.1, .upsampling = MlsOptions::Upsampling::kSampleLocalPlane,
+                .upsampling_radius_m = 0.03, .upsampling_step_m = 0.01};
+  auto upsampled = MlsResample(c, up);
+  ASSERT_TRUE(upsampled.ok());
+  EXPECT_GT(upsampled->size(), c.size());
+  EXPECT_FALSE(MlsResample(c, MlsOptions{.search_radius_m = -1}).ok());
 }
 
 }  // namespace

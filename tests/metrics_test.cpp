@@ -4,8 +4,8 @@
 #include <limits>
 #include <random>
 
-#include "arref/metrics.h"
-#include "arref/nearest_neighbor.h"
+#include "arref/scene/metrics.h"
+#include "arref/scene/nearest_neighbor.h"
 
 namespace arref {
 namespace {

@@ -4,11 +4,11 @@
 #include <cmath>
 #include <numbers>
 
-#include "arref/model_reconstruction.h"
-#include "arref/pipeline.h"
-#include "arref/raycaster.h"
-#include "arref/sampling.h"
-#include "arref/tsdf.h"
+#include "arref/fusion/model_reconstruction.h"
+#include "arref/pipeline/pipeline.h"
+#include "arref/fusion/raycaster.h"
+#include "arref/scene/sampling.h"
+#include "arref/fusion/tsdf.h"
 #include "test_support.h"
 
 namespace arref {

@@ -3,7 +3,7 @@
 #include <filesystem>
 #include <fstream>
 
-#include "arref/robot_model.h"
+#include "arref/robot/robot_model.h"
 #include "test_support.h"
 
 namespace arref {

@@ -2,7 +2,7 @@
 // one in the base frame, one placed in the world at a known pose.
 #pragma once
 
-#include "arref/pipeline.h"
+#include "arref/pipeline/pipeline.h"
 #include "test_support.h"
 
 namespace arref::testing {

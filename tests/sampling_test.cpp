@@ -6,8 +6,8 @@
 
 #include <tbb/global_control.h>
 
-#include "arref/robot_model.h"
-#include "arref/sampling.h"
+#include "arref/robot/robot_model.h"
+#include "arref/scene/sampling.h"
 #include "test_support.h"
 
 namespace arref {
@@ -132,25 +132,6 @@ TEST(Sampling, VoxelDownsampleOnePointPerCell) {
   // 10x10 cells on the small quad, 20x20 on the big one.
   EXPECT_EQ(d.size(), 500u);
   EXPECT_TRUE(d.has_normals());
-}
-
-TEST(Sampling, MlsSmoothsNoise) {
-  PointCloud c = SampleSurface(TwoQuads(), 5000, 1);
-  std::mt19937_64 rng(2);
-  std::normal_distribution<float> noise(0, 0.005f);
-  for (auto& p : c.points) p.z() += noise(rng);
-  auto smoothed = MlsResample(c, MlsOptions{.search_radius_m = 0.1});
-  ASSERT_TRUE(smoothed.ok()) << smoothed.status().ToString();
-  double before = 0, after = 0;
-  for (const auto& p : c.points) before += std::pow(p.z() - std::round(p.z()), 2);
-  for (const auto& p : smoothed->points) after += std::pow(p.z() - std::round(p.z()), 2);
-  EXPECT_LT(std::sqrt(after / smoothed->size()), 0.5 * std::sqrt(before / c.size()));
-  MlsOptions up{.search_radius_m = 0.1, .upsampling = MlsOptions::Upsampling::kSampleLocalPlane,
-                .upsampling_radius_m = 0.03, .upsampling_step_m = 0.01};
-  auto upsampled = MlsResample(c, up);
-  ASSERT_TRUE(upsampled.ok());
-  EXPECT_GT(upsampled->size(), c.size());
-  EXPECT_FALSE(MlsResample(c, MlsOptions{.search_radius_m = -1}).ok());
 }
 
 }  // namespace

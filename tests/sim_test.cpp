@@ -11,12 +11,12 @@
 #include <set>
 #include <string>
 
-#include "arref/nearest_neighbor.h"
-#include "arref/raycaster.h"
-#include "arref/robot_model.h"
-#include "arref/sampling.h"
+#include "arref/scene/nearest_neighbor.h"
+#include "arref/fusion/raycaster.h"
+#include "arref/robot/robot_model.h"
+#include "arref/scene/sampling.h"
 #include "arref/sim/cell_simulator.h"
-#include "arref/spatial_mesh.h"
+#include "arref/scene/spatial_mesh.h"
 #include "test_support.h"
 
 namespace arref::sim {

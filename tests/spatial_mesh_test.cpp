@@ -2,8 +2,8 @@
 
 #include <cmath>
 
-#include "arref/nearest_neighbor.h"
-#include "arref/spatial_mesh.h"
+#include "arref/scene/nearest_neighbor.h"
+#include "arref/scene/spatial_mesh.h"
 
 namespace arref {
 namespace {

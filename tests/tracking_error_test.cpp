@@ -6,7 +6,7 @@
 #include <cmath>
 #include <numbers>
 
-#include "arref/tracking_error.h"
+#include "arref/fusion/tracking_error.h"
 
 namespace arref {
 namespace {

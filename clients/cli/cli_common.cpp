@@ -5,7 +5,7 @@
 
 #include <sstream>
 
-#include "arref/builtin.h"
+#include "arref/base/builtin.h"
 
 namespace arref::cli {
 

@@ -6,10 +6,10 @@
 #include <string>
 #include <vector>
 
-#include "arref/frames.h"
-#include "arref/geometry.h"
-#include "arref/robot_model.h"
-#include "arref/status.h"
+#include "arref/base/frames.h"
+#include "arref/base/geometry.h"
+#include "arref/robot/robot_model.h"
+#include "arref/base/status.h"
 #include "client_io.h"  // poses, positions and joints as the subcommands read and write them
 
 namespace arref::cli {

@@ -4,10 +4,10 @@
 #include <algorithm>
 #include <cstdio>
 
-#include "arref/metrics.h"
-#include "arref/pipeline.h"
+#include "arref/scene/metrics.h"
+#include "arref/pipeline/pipeline.h"
 #include "arref/sim/cell_simulator.h"
-#include "arref/spatial_mesh.h"
+#include "arref/scene/spatial_mesh.h"
 #include "cli_common.h"
 #include "commands.h"
 

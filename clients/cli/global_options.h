@@ -4,7 +4,7 @@
 
 #include <CLI/CLI.hpp>
 
-#include "arref/registration.h"
+#include "arref/pipeline/registration.h"
 
 namespace arref::cli {
 

@@ -5,9 +5,9 @@
 #include <iostream>
 #include <nlohmann/json.hpp>
 
-#include "arref/metrics.h"
-#include "arref/pipeline.h"
-#include "arref/spatial_mesh.h"
+#include "arref/scene/metrics.h"
+#include "arref/pipeline/pipeline.h"
+#include "arref/scene/spatial_mesh.h"
 #include "cli_common.h"
 #include "commands.h"
 #include "global_options.h"

@@ -19,8 +19,8 @@
 #include <nlohmann/json.hpp>
 #include <thread>
 
-#include "arref/builtin.h"
-#include "arref/pipeline.h"
+#include "arref/base/builtin.h"
+#include "arref/pipeline/pipeline.h"
 #include "arref/sim/cell_simulator.h"
 #include "client_io.h"
 

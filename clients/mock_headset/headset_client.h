@@ -10,10 +10,10 @@
 #include <string>
 #include <vector>
 
-#include "arref/metrics.h"
-#include "arref/robot_model.h"
-#include "arref/spatial_mesh.h"
-#include "arref/status.h"
+#include "arref/scene/metrics.h"
+#include "arref/robot/robot_model.h"
+#include "arref/scene/spatial_mesh.h"
+#include "arref/base/status.h"
 #include "wire.h"
 
 namespace arref::headset {

@@ -12,9 +12,9 @@
 #include <string>
 #include <tuple>
 
-#include "arref/raycaster.h"
+#include "arref/fusion/raycaster.h"
 #include "scene_builder.h"
-#include "arref/tsdf.h"
+#include "arref/fusion/tsdf.h"
 
 namespace arref::sim {
 namespace {

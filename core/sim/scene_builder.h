@@ -5,10 +5,10 @@
 #include <random>
 #include <vector>
 
-#include "arref/geometry.h"
-#include "arref/robot_model.h"
+#include "arref/base/geometry.h"
+#include "arref/robot/robot_model.h"
 #include "arref/sim/cell_simulator.h"
-#include "arref/status.h"
+#include "arref/base/status.h"
 
 namespace arref::sim {
 

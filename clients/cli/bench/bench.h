@@ -8,7 +8,7 @@
 #include <string>
 #include <vector>
 
-#include "arref/pipeline.h"
+#include "arref/pipeline/pipeline.h"
 #include "arref/sim/cell_simulator.h"
 
 namespace arref::bench {

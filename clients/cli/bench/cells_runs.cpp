@@ -10,10 +10,10 @@
 #include <fstream>
 #include <numeric>
 
-#include "arref/metrics.h"
-#include "arref/nearest_neighbor.h"
-#include "arref/sampling.h"
-#include "arref/spatial_mesh.h"
+#include "arref/scene/metrics.h"
+#include "arref/scene/nearest_neighbor.h"
+#include "arref/scene/sampling.h"
+#include "arref/scene/spatial_mesh.h"
 #include "bench.h"
 
 namespace arref::bench {

@@ -7,10 +7,10 @@
 #include <string>
 #include <vector>
 
-#include "arref/geometry.h"
-#include "arref/robot_model.h"
-#include "arref/spatial_mesh.h"
-#include "arref/status.h"
+#include "arref/base/geometry.h"
+#include "arref/robot/robot_model.h"
+#include "arref/scene/spatial_mesh.h"
+#include "arref/base/status.h"
 
 namespace arref::sim {
 

@@ -1,0 +1,345 @@
+// arref-icp: robust initialisation by a gravity-aligned 4-DoF search around the seed, then
+// point-to-plane ICP of the robot as the headset would mesh it (model_reconstruction.h), or of
+// the model points a person can see when no such surface is given.
+//
+// Why: the headset's world is gravity aligned and robots stand upright, so T_world_base is
+// x, y, z and yaw up to small tilt. Local ICP falls into a
+// wrong basin beyond ~45 degrees of yaw or ~0.3 m of position error, so every yaw is tried;
+// unseen model surfaces pull ICP 2-3 cm off, and the fused mesh's shell another 4-10 mm, so
+// the surface fitted is the one a headset would produce (docs/engine.md).
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <array>
+#include <cmath>
+#include <memory>
+#include <numbers>
+#include <optional>
+#include <span>
+
+#include <tbb/parallel_for.h>
+
+#include "arref/icp/fast_icp.h"
+#include "arref/fusion/model_visibility.h"
+#include "arref/icp/arref_icp.h"
+#include "arref/fusion/robot_side.h"
+#include "arref/scene/sampling.h"
+#include "arref/scene/spatial_mesh.h"
+#include "arref/fusion/tracking_error.h"
+#include "arref/icp/step_timer.h"
+
+namespace arref {
+namespace {
+
+struct Candidate {
+  Iso3 T_world_base;
+  double score = 0.0;
+  int iterations = 0;
+};
+
+double Yaw(const Iso3& T) { return std::atan2(T.linear()(1, 0), T.linear()(0, 0)); }
+
+std::vector<Iso3> Hypotheses(const Iso3& seed, const ArrefIcpParams& p, int position_steps) {
+  std::vector<Iso3> out;
+  const Vec3 c = seed.translation();
+  const double yaw0 = Yaw(seed);
+  for (int ix = -position_steps; ix <= position_steps; ++ix)
+    for (int iy = -position_steps; iy <= position_steps; ++iy) {
+      if (position_steps > 0 && ix == 0 && iy == 0) continue;  // the centre was searched already
+      for (double dz : p.height_offsets_m)
+        for (int k = 0; k < p.yaw_hypotheses; ++k)
+          out.push_back(MakeYawPose(c.x() + ix * p.position_step_m, c.y() + iy * p.position_step_m, c.z() + dz,
+                                    yaw0 + 2 * std::numbers::pi * k / p.yaw_hypotheses));
+    }
+  return out;
+}
+
+// Coarse 4-DoF alignment of each hypothesis on a thin model, scored at 3 cm. Hypotheses run
+// in parallel (each small ICP on one thread scales better than splitting 400 points).
+// arref-icp's ICP stays in the 4-DoF subgroup (robots stand upright in a gravity-aligned world).
+IcpSettings YawOnly(const ArrefIcpParams& p, int max_iterations) {
+  IcpSettings s;
+  s.metric = p.metric;
+  s.yaw_only = true;
+  s.max_iterations = max_iterations;
+  return s;
+}
+
+std::vector<Candidate> CoarseSearch(const PointCloud& coarse, const TargetCloud& target,
+                                    const std::vector<Iso3>& starts, const ArrefIcpParams& p) {
+  const IcpSettings s = YawOnly(p, 6);
+  std::vector<Candidate> out(starts.size());
+  tbb::parallel_for(std::size_t{0}, starts.size(), [&](std::size_t i) {
+    const IcpStats st = AlignCoarseToFine(coarse, target, starts[i], {0.3, 0.15, 0.08}, s);
+    out[i] = {st.T_target_source, ScoreAlignment(coarse, target, st.T_target_source, 0.03, 0.5).inlier_fraction,
+              st.iterations};
+  });
+  return out;
+}
+
+bool SamePose(const Iso3& a, const Iso3& b) {
+  const double dyaw = std::abs(std::remainder(Yaw(a) - Yaw(b), 2 * std::numbers::pi));
+  return (a.translation() - b.translation()).norm() < 0.05 && dyaw < 10 * std::numbers::pi / 180;
+}
+
+// The best `count` candidates that are not the same pose as a better one.
+std::vector<Candidate> Distinct(std::vector<Candidate> all, std::size_t count) {
+  std::stable_sort(all.begin(), all.end(), [](const Candidate& a, const Candidate& b) { return a.score > b.score; });
+  std::vector<Candidate> out;
+  for (const auto& c : all) {
+    if (out.size() == count) break;
+    if (std::none_of(out.begin(), out.end(), [&](const Candidate& o) { return SamePose(o.T_world_base, c.T_world_base); }))
+      out.push_back(c);
+  }
+  return out;
+}
+
+// Correspondence distances of the refinement: from capturing a coarse pose's basin (approach,
+// on ArrefIcpParams::approach_points) down to the noise of a headset mesh (polish). A pose
+// already refined once is only polished.
+const std::vector<double> kApproachLevels = {0.08, 0.04};
+const std::vector<double> kPolishLevels = {0.02, 0.012};
+
+Candidate Approach(const PointCloud& approach, const TargetCloud& target, const Candidate& start,
+                   const ArrefIcpParams& p) {
+  const IcpStats st = AlignCoarseToFine(approach, target, start.T_world_base, kApproachLevels, YawOnly(p, 15));
+  return {st.T_target_source, start.score, start.iterations + st.iterations};
+}
+
+Candidate Refine(const PointCloud& fine, const TargetCloud& target, const Candidate& start, const ArrefIcpParams& p,
+                 const std::vector<double>& levels, std::span<const float> weights = {}) {
+  IcpSettings s = YawOnly(p, 15);
+  IcpStats st = AlignCoarseToFine(fine, target, start.T_world_base, levels, s, weights);
+  int iterations = start.iterations + st.iterations;
+  if (p.final_six_dof) {
+    s.yaw_only = false;
+    st = AlignCoarseToFine(fine, target, st.T_target_source, {0.012}, s, weights);
+    iterations += st.iterations;
+  }
+  return {st.T_target_source, ScoreAlignment(fine, target, st.T_target_source, 0.02, 0.5).inlier_fraction, iterations};
+}
+
+// A refined pose polished with another surface: the pose moves, its score stays, the
+// iterations add up.
+Candidate Polish(const PointCloud& surface, const TargetCloud& target, const Candidate& best, const ArrefIcpParams& p,
+                 std::span<const float> weights = {}) {
+  const Candidate c = Refine(surface, target, {best.T_world_base, best.score, 0}, p, kPolishLevels, weights);
+  return {c.T_world_base, best.score, best.iterations + c.iterations};
+}
+
+// The expected surface assumes the robot was mapped from all round; a user maps one side, and
+// the other side's shell differs (measured: 4-6 mm of bias away from the walked side). Each
+// one-sided walk's surface is laid on the scene at the fitted pose; if one lies closer than the
+// all-round surface, the fit is refined with it. The walked side is judged by the whole shell's
+// shape (analysis by synthesis), not by which model parts have scene points nearby: at a
+// walker's height nearly every side is seen at some angle.
+Result<Candidate> RefineForWalk(const ArrefIcpInput& in, const PointCloud& all_round, const TargetCloud& target,
+                                const Candidate& best, std::shared_ptr<const PointCloud>* fitted, int* walk_out,
+                                std::vector<std::string>* stages) {
+  const ArrefIcpParams& p = in.params;
+  std::vector<std::shared_ptr<const PointCloud>> surfaces;  // the walks' surfaces, thinned as the all-round one
+  for (int walk = 0; walk < RobotSide::kWalks; ++walk) {
+    auto surface = in.robot->Expected(in.voxel_m, walk, p.fine_points);  // built once, then cached
+    if (!surface.ok()) return surface.status().WithContext("arref-icp");
+    surfaces.push_back(*surface);
+  }
+  std::vector<double> d(surfaces.size());
+  tbb::parallel_for(std::size_t{0}, surfaces.size(), [&](std::size_t w) {
+    d[w] = MedianPlaneDistance(*surfaces[w], target, best.T_world_base, 0.03, 0.5);
+  });
+  double best_d = MedianPlaneDistance(all_round, target, best.T_world_base, 0.03, 0.5);
+  int best_walk = -1;
+  for (int walk = 0; walk < RobotSide::kWalks; ++walk) {
+    spdlog::debug("arref-icp: walk {}: median plane distance {:.2f} mm", walk, d[walk] * 1e3);
+    if (d[walk] < best_d) best_d = d[walk], best_walk = walk;
+  }
+  *walk_out = best_walk;
+  if (best_walk < 0) return best;
+  *fitted = surfaces[best_walk];
+  stages->push_back(fmt::format("walk-{}", best_walk));
+  return Polish(**fitted, target, best, p);
+}
+
+// The scene round the fitted surface, sampled at ArrefIcpParams::context_target_density per
+// voxel face: the triangles within the last polish's reach (2 cm) and a voxel of it.
+std::optional<TargetCloud> DenseTargetNear(const ArrefIcpInput& in, const PointCloud& surface_base, const Iso3& T_world_base) {
+  const double density = in.params.context_target_density;
+  if (!(density > 0) || in.voxel_m <= 0) return std::nullopt;
+  PointCloud surface_world = surface_base;
+  surface_world.Transform(T_world_base);
+  const PointIndex near_surface(std::move(surface_world.points));
+  const TriangleMesh near = TrianglesNear(*in.scene_mesh_world, near_surface, kPolishLevels.front() + in.voxel_m);
+  const double count = std::min(density * near.SurfaceArea() / (in.voxel_m * in.voxel_m), 1e6);
+  if (count < 1) return std::nullopt;
+  return TargetCloud(SampleSurface(near, static_cast<std::size_t>(count), in.sample_seed));
+}
+
+// Which head positions the refit takes as eyes: those a headset maps the robot from (HoloLens
+// depth reaches ~4 m), and enough of them to be a path.
+constexpr double kNearestEyeM = 0.5, kFarthestEyeM = 4.0;
+constexpr std::size_t kFewestPathEyes = 3, kRefitEyes = 24;
+
+// The refit's eyes when the app sent where its wearer walked: the path in the base frame, the
+// positions kNearestEyeM-kFarthestEyeM from its base, at most kRefitEyes of them spread evenly
+// in time. Empty (the walk's eyes) with fewer than kFewestPathEyes.
+std::vector<Vec3> EyesOfPath(std::span<const Vec3> path_world, const Iso3& T_world_base) {
+  const Iso3 T_base_world = T_world_base.inverse();
+  std::vector<Vec3> usable;
+  for (const Vec3& p : path_world) {
+    const Vec3 eye = T_base_world * p;
+    if (eye.head<2>().norm() >= kNearestEyeM && eye.norm() <= kFarthestEyeM) usable.push_back(eye);
+  }
+  if (usable.size() < kFewestPathEyes) return {};
+  const std::size_t n = usable.size(), kept = std::min(n, kRefitEyes);
+  std::vector<Vec3> eyes;
+  for (std::size_t i = 0; i < kept; ++i) eyes.push_back(usable[kept == n ? i : i * (n - 1) / (kept - 1)]);
+  return eyes;
+}
+
+// Objects near the robot (a table 0.2 m from its base) hide parts of it from the walker and
+// fuse with its shell; fitted without them, the robot is pulled towards them (measured: 3.7 mm
+// towards a table, noise-free). The chosen walk's surface is fused again with the mapped objects
+// round the fitted pose, and the pose polished with it.
+Candidate RefineInContext(const ArrefIcpInput& in, int walk, const TargetCloud& target, const Candidate& best,
+                          std::shared_ptr<const PointCloud>* fitted, std::vector<std::string>* stages) {
+  const std::vector<Vec3> eyes = EyesOfPath(in.head_path_world, best.T_world_base);
+  if (!eyes.empty()) {
+    stages->push_back("head-path");
+  } else if (!in.head_path_world.empty()) {
+    spdlog::warn("arref-icp: the head path has fewer than {} positions {}-{} m from the robot; assuming walk {}",
+                 kFewestPathEyes, kNearestEyeM, kFarthestEyeM, walk);
+    stages->push_back("head-path-unused");
+  }
+  auto surface = in.robot->ExpectedInContext(in.voxel_m, walk, *in.scene_mesh_world, best.T_world_base, eyes);
+  if (!surface.ok()) {  // the fit without the objects stands
+    spdlog::warn("arref-icp: no expected surface in context, keeping the fit without it: {}", surface.status().ToString());
+    stages->push_back("in-context-skipped");
+    return best;
+  }
+  *fitted = std::make_shared<const PointCloud>(Thinned(*surface, in.params.context_points));
+  stages->push_back("in-context");
+  const std::optional<TargetCloud> dense = DenseTargetNear(in, **fitted, best.T_world_base);
+  // The surface's points weighed by how far the headset's tracking error moves them, as seen
+  // from the eyes it was fused from (tracking_error.h).
+  const std::vector<float> weights =
+      TrackingErrorWeights(**fitted, eyes.empty() ? RobotSide::RefitEyes(walk) : eyes, in.params.tracking_error);
+  return Polish(**fitted, dense ? *dense : target, best, in.params, weights);
+}
+
+// Which surface explains the scene: a fused headset mesh is matched by the expected surface,
+// exact geometry (a CAD scene, a fine scan) by the exact one. The winner is refined with the exact
+// visible surface too, and whichever lies closer to the scene's tangent planes is kept.
+Candidate ExactIfCloser(const ArrefIcpInput& in, const PointCloud& expected_fine, const TargetCloud& target,
+                        const Candidate& best, std::vector<std::string>* stages) {
+  const ArrefIcpParams& p = in.params;
+  // Kept by the robot when there is one: no copy per request.
+  const auto exact_kept = in.robot ? in.robot->Visible(p.fine_points)
+                                   : std::make_shared<const PointCloud>(Thinned(VisiblePoints(in.model_base), p.fine_points));
+  const PointCloud& exact_fine = *exact_kept;
+  const Candidate exact = Polish(exact_fine, target, best, p);
+  const double d_expected = MedianPlaneDistance(expected_fine, target, best.T_world_base, 0.03, 0.5);
+  const double d_exact = MedianPlaneDistance(exact_fine, target, exact.T_world_base, 0.03, 0.5);
+  spdlog::debug("arref-icp: median plane distance {:.1f} mm expected surface, {:.1f} mm exact", d_expected * 1e3,
+                d_exact * 1e3);
+  if (d_exact < d_expected) {
+    stages->push_back("fitted-exact-surface");
+    return exact;
+  }
+  stages->push_back("fitted-expected-surface");
+  return best;
+}
+
+// The model points fitted, thinned for the pose search, the approach and the polish: the robot
+// as the headset would mesh it when known, else its exact surface, visible parts only. Cached by
+// the robot when it has them.
+Result<std::array<std::shared_ptr<const PointCloud>, 3>> FittedModel(const ArrefIcpInput& in) {
+  const ArrefIcpParams& p = in.params;
+  const std::array<std::size_t, 3> counts = {p.coarse_points, p.approach_points, p.fine_points};
+  std::array<std::shared_ptr<const PointCloud>, 3> out;
+  if (in.robot && in.model_expected) {  // the all-round surface, thinned once and kept by the robot
+    for (std::size_t i = 0; i < counts.size(); ++i) {
+      auto kept = in.robot->Expected(in.voxel_m, -1, counts[i]);
+      if (!kept.ok()) return kept.status().WithContext("arref-icp");
+      out[i] = *kept;
+    }
+    return out;
+  }
+  std::optional<PointCloud> own_visible;  // only without a given surface: no copy of one
+  if (!in.model_expected) own_visible = VisiblePoints(in.model_base);
+  const PointCloud& visible = in.model_expected ? *in.model_expected : *own_visible;
+  for (std::size_t i = 0; i < counts.size(); ++i) out[i] = std::make_shared<const PointCloud>(Thinned(visible, counts[i]));
+  return out;
+}
+
+// Every yaw round the seed, and when none fits well a grid of positions too, each given a
+// coarse 4-DoF alignment and scored.
+std::vector<Candidate> SearchPoses(const PointCloud& coarse, const TargetCloud& target, const Iso3& seed,
+                                   const ArrefIcpParams& p, RegistrationOutput* out) {
+  out->stages.push_back("yaw-search");
+  std::vector<Candidate> candidates = CoarseSearch(coarse, target, Hypotheses(seed, p, 0), p);
+  const double best_coarse = Distinct(candidates, 1).front().score;
+  if (best_coarse < p.expand_below_score && p.position_steps > 0) {
+    spdlog::debug("arref-icp: best coarse score {:.2f} < {:.2f}: searching positions too", best_coarse,
+                  p.expand_below_score);
+    const auto more = CoarseSearch(coarse, target, Hypotheses(seed, p, p.position_steps), p);
+    candidates.insert(candidates.end(), more.begin(), more.end());
+    out->stages.push_back("position-search");
+  }
+  out->hypotheses = static_cast<int>(candidates.size());
+  return candidates;
+}
+
+}  // namespace
+
+Result<RegistrationOutput> RegisterArrefIcp(const ArrefIcpInput& in) {
+  const ArrefIcpParams& p = in.params;
+  if (!in.model_base.has_normals() || !in.scene_world.has_normals() ||
+      (in.model_expected && !in.model_expected->has_normals()))
+    return Status::FailedPrecondition("arref-icp needs normals on model and scene points");
+  if (p.yaw_hypotheses < 1 || p.height_offsets_m.empty() || p.refine_top < 1 || p.position_steps < 0)
+    return Status::InvalidArgument("arref-icp: yaw hypotheses, heights and refine_top must be >= 1");
+  const auto model_or = FittedModel(in);
+  if (!model_or.ok()) return model_or.status();
+  const auto& model = *model_or;
+  const PointCloud& coarse = *model[0];
+  const PointCloud& approach = *model[1];
+  const PointCloud& fine = *model[2];
+  const TargetCloud& target = in.scene_target;
+
+  RegistrationOutput out;
+  StepTimer timer(&out);
+  const std::vector<Candidate> candidates = SearchPoses(coarse, target, in.T_world_seed, p, &out);
+  timer.Step("pose-search");
+  std::vector<Candidate> refined;
+  for (const auto& c : Distinct(candidates, static_cast<std::size_t>(p.refine_top)))
+    refined.push_back(Refine(fine, target, Approach(approach, target, c, p), p, kPolishLevels));
+  refined = Distinct(refined, 2);
+  out.stages.push_back("arref-icp");
+  timer.Step("refine");
+  if (in.model_expected) {
+    std::shared_ptr<const PointCloud> fitted = model[2];  // the surface polished last, shared not copied
+    int walk = -1;
+    if (in.robot && p.select_walk) {
+      auto walked = RefineForWalk(in, fine, target, refined.front(), &fitted, &walk, &out.stages);
+      if (!walked.ok()) return walked.status();
+      refined.front() = *walked;
+      timer.Step("walk-choice");
+    }
+    if (in.robot && in.scene_mesh_world && p.in_context) {
+      refined.front() = RefineInContext(in, walk, target, refined.front(), &fitted, &out.stages);
+      timer.Step("context");
+    }
+    refined.front() = ExactIfCloser(in, *fitted, target, refined.front(), &out.stages);
+    timer.Step("surface-choice");
+  }
+  out.T_world_base = refined.front().T_world_base;
+  out.score = refined.front().score;
+  out.margin = refined.size() > 1 ? refined[0].score - refined[1].score : refined[0].score;
+  for (const auto& c : candidates) out.iterations += c.iterations;
+  out.iterations += refined.front().iterations;
+  out.converged = true;
+  return out;
+}
+
+}  // namespace arref

@@ -1,0 +1,25 @@
+// What every registration method returns: the pose, what ran, and its own ranking figures.
+#pragma once
+
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "arref/base/geometry.h"
+
+namespace arref {
+
+struct RegistrationOutput {
+  Iso3 T_world_base = Iso3::Identity();
+  int iterations = 0;
+  bool converged = false;
+  std::vector<std::string> stages;  // which steps ran, e.g. {"pcl-icp"}
+  // Methods that rank several candidate poses report the winner's score and its lead over
+  // the best distinct runner-up (both as inlier fractions); negative when not applicable.
+  double score = -1.0;
+  double margin = -1.0;
+  int hypotheses = 0;
+  std::vector<std::pair<std::string, double>> step_ms;  // the method's own steps, in order (profiling)
+};
+
+}  // namespace arref

@@ -1,0 +1,116 @@
+#include "arref/scene/spatial_mesh.h"
+
+#include <tbb/parallel_for.h>
+
+#include <string>
+
+#include "arref/scene/nearest_neighbor.h"
+
+namespace arref {
+namespace {
+
+std::string SurfaceName(const Surface& s) { return "surface " + std::to_string(s.id); }
+
+bool IsFinite(const Iso3& T) { return T.matrix().allFinite(); }
+
+double TriangleArea(const TriangleMesh& mesh, const Triangle& t) {
+  const Vec3f a = mesh.vertices[t[0]];
+  return 0.5 * static_cast<double>((mesh.vertices[t[1]] - a).cross(mesh.vertices[t[2]] - a).norm());
+}
+
+}  // namespace
+
+Status ValidateSurface(const Surface& surface) {
+  const TriangleMesh& mesh = surface.mesh;
+  if (mesh.vertices.empty() || mesh.triangles.empty())
+    return Status::InvalidArgument(SurfaceName(surface) + " is empty (" + std::to_string(mesh.vertices.size()) +
+                                   " vertices, " + std::to_string(mesh.triangles.size()) + " triangles)");
+  if (!IsFinite(surface.T_world_surface))
+    return Status::InvalidArgument(SurfaceName(surface) + ": transform to world is not finite");
+  const Eigen::Matrix3d R = surface.T_world_surface.linear();
+  if (!(R.transpose() * R).isApprox(Eigen::Matrix3d::Identity(), 1e-4) || R.determinant() < 0)
+    return Status::InvalidArgument(SurfaceName(surface) + ": transform to world is not a rigid rotation");
+  for (std::size_t i = 0; i < mesh.vertices.size(); ++i)
+    if (!mesh.vertices[i].allFinite())
+      return Status::InvalidArgument(SurfaceName(surface) + ": vertex " + std::to_string(i) + " is not finite");
+  const auto n = mesh.vertices.size();
+  std::size_t degenerate = 0;
+  for (std::size_t i = 0; i < mesh.triangles.size(); ++i) {
+    const Triangle& t = mesh.triangles[i];
+    for (auto index : t)
+      if (index >= n)
+        return Status::InvalidArgument(SurfaceName(surface) + ": triangle " + std::to_string(i) + " uses vertex " +
+                                       std::to_string(index) + " but there are only " + std::to_string(n));
+    if (TriangleArea(mesh, t) <= 1e-12) ++degenerate;
+  }
+  if (degenerate == mesh.triangles.size())
+    return Status::InvalidArgument(SurfaceName(surface) + ": all " + std::to_string(degenerate) +
+                                   " triangles are degenerate (zero area)");
+  return Status::Ok();
+}
+
+Status SpatialMesh::Upsert(Surface surface) {
+  ARREF_RETURN_IF_ERROR(ValidateSurface(surface));
+  surfaces_[surface.id] = std::move(surface);
+  return Status::Ok();
+}
+
+bool SpatialMesh::Remove(std::uint64_t id) { return surfaces_.erase(id) > 0; }
+
+std::size_t SpatialMesh::vertex_count() const {
+  std::size_t n = 0;
+  for (const auto& [id, s] : surfaces_) n += s.mesh.vertices.size();
+  return n;
+}
+
+TriangleMesh SpatialMesh::MergedWorld() const {
+  TriangleMesh merged;
+  for (const auto& [id, s] : surfaces_) merged.Append(s.mesh, s.T_world_surface);
+  return merged;
+}
+
+TriangleMesh CropToSphere(const TriangleMesh& mesh, const Vec3& center, double radius) {
+  const Vec3f c = center.cast<float>();
+  const float r2 = static_cast<float>(radius * radius);
+  std::vector<std::int64_t> remap(mesh.vertices.size(), -1);
+  TriangleMesh out;
+  auto keep = [&](std::uint32_t v) {
+    if (remap[v] < 0) {
+      remap[v] = static_cast<std::int64_t>(out.vertices.size());
+      out.vertices.push_back(mesh.vertices[v]);
+    }
+    return static_cast<std::uint32_t>(remap[v]);
+  };
+  for (const auto& t : mesh.triangles) {
+    const bool inside = (mesh.vertices[t[0]] - c).squaredNorm() <= r2 || (mesh.vertices[t[1]] - c).squaredNorm() <= r2 ||
+                        (mesh.vertices[t[2]] - c).squaredNorm() <= r2;
+    if (inside) out.triangles.push_back({keep(t[0]), keep(t[1]), keep(t[2])});
+  }
+  return out;
+}
+
+TriangleMesh KeepTriangles(const TriangleMesh& mesh, const std::function<bool(const Triangle&)>& keep) {
+  std::vector<char> kept(mesh.triangles.size());
+  tbb::parallel_for(std::size_t{0}, kept.size(), [&](std::size_t i) { kept[i] = keep(mesh.triangles[i]); });
+  TriangleMesh out;
+  out.vertices = mesh.vertices;
+  for (std::size_t i = 0; i < kept.size(); ++i)
+    if (kept[i]) out.triangles.push_back(mesh.triangles[i]);
+  return out;
+}
+
+TriangleMesh TrianglesNear(const TriangleMesh& mesh, const PointIndex& points, double distance_m) {
+  // Without points the box is empty (BoundsOf) and no triangle is kept.
+  const Aabb near = BoundsOf(points.points()).Grown(static_cast<float>(distance_m));
+  const float limit_sq = static_cast<float>(distance_m * distance_m);
+  return KeepTriangles(mesh, [&](const Triangle& t) {
+    const Vec3f c = Centroid(mesh, t);
+    return near.Contains(c) && points.AnyWithin(c, limit_sq);
+  });
+}
+
+TriangleMesh RemoveDegenerateTriangles(const TriangleMesh& mesh, double min_area) {
+  return KeepTriangles(mesh, [&](const Triangle& t) { return TriangleArea(mesh, t) > min_area; });
+}
+
+}  // namespace arref

@@ -79,3 +79,16 @@ class [[nodiscard]] Result {
     ::arref::Status arref_status_ = (expr);    \
     if (!arref_status_.ok()) return arref_status_; \
   } while (0)
+
+#define ARREF_STATUS_CONCAT_INNER_(a, b) a##b
+#define ARREF_STATUS_CONCAT_(a, b) ARREF_STATUS_CONCAT_INNER_(a, b)
+
+// ARREF_ASSIGN_OR_RETURN(lhs, expr): evaluates expr (a Result<T>); on error returns its Status
+// from the calling function, else moves the value into lhs, which may declare a variable:
+//   ARREF_ASSIGN_OR_RETURN(auto mesh, robot.PosedMesh(joints));
+#define ARREF_ASSIGN_OR_RETURN(lhs, expr) \
+  ARREF_ASSIGN_OR_RETURN_IMPL_(ARREF_STATUS_CONCAT_(arref_result_, __LINE__), lhs, expr)
+#define ARREF_ASSIGN_OR_RETURN_IMPL_(result, lhs, expr) \
+  auto result = (expr);                                 \
+  if (!result.ok()) return result.status();             \
+  lhs = std::move(result).value()

@@ -41,7 +41,7 @@ constexpr double kReplyTimeout = 120.0;  // only to avoid hanging; never a speed
 
 // Success = ADD within this of the truth. PCL ICP from user-like seeds (~0.1 m, ~15 deg off)
 // lands around 1 cm off on these cells (measured here: median ADD 9.5 mm, 49 of 50 within 20 mm,
-// one seed in a wrong basin at 0.6 m; see docs/domain-notes.md), so the bound is 30 mm and the
+// one seed in a wrong basin at 0.6 m), so the bound is 30 mm and the
 // tests ask for a success rate, not every seed.
 constexpr double kAddSuccessM = 0.030;
 constexpr double kMinSuccessRate = 0.8;

@@ -42,9 +42,8 @@ ReconstructionOptions WalkOptions(double voxel_m, int walk) {
   return EyesOf(voxel_m, walk, kWalkArcDeg, on_lattice(kWalkArcDeg) + 1, on_lattice(360.0));
 }
 
-// The refit's eyes, per request: 24, as the walks had before the lattice. On the bench the
-// walks' own 25 eyes fitted as well on users' own paths (--varied-walk), worse on the
-// simulator's regular arc, and cost 4 % more.
+// The refit's eyes, per request: 24 on a 220-degree arc, not the walks' 25 lattice eyes, which
+// fitted no better and worse on the simulator's regular arc (docs/engine.md, "Refit in context").
 ReconstructionOptions RefitOptions(double voxel_m, int walk) { return EyesOf(voxel_m, walk, kRefitArcDeg, 24, 24); }
 }  // namespace
 
@@ -151,8 +150,8 @@ Result<PointCloud> RobotSide::ExpectedInContext(double voxel_m, int walk, const 
   }
   const double clearance = std::max(kContextClearanceM, 1.5 * voxel_m);
   ReconstructionOptions options = RefitOptions(voxel_m, walk);
-  // Made on every request, so at one pixel per voxel: it halves the time and, on the bench's
-  // 96 cells, kept 99 % within 10 mm. Fewer eyes did not (12 or 18 eyes: 93-95 %).
+  // Made on every request, so at one pixel per voxel: half the time at the same accuracy; fewer
+  // eyes than 24 lose accuracy (docs/engine.md, "Refit in context").
   options.pixels_per_voxel = 1.0;
   for (const Vec3& eye : eyes_base) options.eyes_base.push_back({eye.x(), eye.y(), eye.z()});
   return maker->MakeInContext(options, samples_.size(), scene_world, T_world_base, clearance);

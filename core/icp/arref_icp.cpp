@@ -129,7 +129,7 @@ Candidate Polish(const PointCloud& surface, const TargetCloud& target, const Can
 }
 
 // The expected surface assumes the robot was mapped from all round; a user maps one side, and
-// the other side's shell differs (measured: 4-6 mm of bias away from the walked side). Each
+// the other side's shell differs (4-6 mm of bias away from the walked side). Each
 // one-sided walk's surface is laid on the scene at the fitted pose; if one lies closer than the
 // all-round surface, the fit is refined with it. The walked side is judged by the whole shell's
 // shape (analysis by synthesis), not by which model parts have scene points nearby: at a
@@ -198,8 +198,8 @@ std::vector<Vec3> EyesOfPath(std::span<const Vec3> path_world, const Iso3& T_wor
 }
 
 // Objects near the robot (a table 0.2 m from its base) hide parts of it from the walker and
-// fuse with its shell; fitted without them, the robot is pulled towards them (measured: 3.7 mm
-// towards a table, noise-free). The chosen walk's surface is fused again with the mapped objects
+// fuse with its shell; fitted without them, the robot is pulled towards them (about 4 mm
+// towards a table, even without noise). The chosen walk's surface is fused again with the mapped objects
 // round the fitted pose, and the pose polished with it.
 Candidate RefineInContext(const ArrefIcpInput& in, int walk, const TargetCloud& target, const Candidate& best,
                           std::shared_ptr<const PointCloud>* fitted, std::vector<std::string>* stages) {

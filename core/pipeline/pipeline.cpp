@@ -101,9 +101,9 @@ const char* ResultStatusName(ResultStatus status) {
 
 namespace {
 
-// Below 2 cm a fused shell lies within a few millimetres of the surface: measured on the big
-// configuration (1 cm voxels, vendor KR5), the expected surface gave a median ADD of 6.5 mm and
-// the exact one 5.9 mm, while the expected surfaces took 6 s to build. Above 15 cm a mesh is
+// Below 2 cm a fused shell lies within a few millimetres of the surface: the exact surface fits
+// as well or better, and the expected surfaces would take seconds to build (docs/engine.md,
+// "Exact or expected surface"). Above 15 cm a mesh is
 // too coarse for the fusion to say anything.
 constexpr double kMinExpectedVoxel = 0.02, kMaxExpectedVoxel = 0.15;
 

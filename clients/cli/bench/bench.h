@@ -14,7 +14,7 @@
 namespace arref::bench {
 
 constexpr double kSuccessAddM = 0.010;  // success = ADD <= 10 mm
-constexpr double kWrongAddM = 0.020;    // a result this far off is wrong (issue 5: never OK)
+constexpr double kWrongAddM = 0.020;    // a result this far off is wrong (and must never be OK)
 
 // How the scenes experiment's cells and seeds depart from the simulator's defaults.
 struct CellVariation {

@@ -2,8 +2,8 @@
 //
 // A headset mesh is not the robot's surface: depth fusion at a few centimetres per voxel
 // rounds edges, fattens thin links and closes the space under overhangs. Fitting the exact
-// model into that shell leaves a systematic error of the order of the voxel (measured on the
-// simulated cells: 7-10 mm, mostly vertical, with no depth noise at all). Fitting instead
+// model into that shell leaves a systematic error of the order of the voxel (7-10 mm on the
+// simulated cells, mostly vertical, even without depth noise; docs/engine.md). Fitting instead
 // the model passed through the same kind of fusion compares like with like, as in
 // analysis-by-synthesis tracking: render what the sensor would see, compare that.
 // Built once per robot, joint state and voxel size.

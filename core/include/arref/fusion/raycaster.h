@@ -61,9 +61,8 @@ PixelRect PixelsOfBox(const PinholeCamera& camera, const Iso3& T_camera_scene, c
 class RayCaster {
  public:
   // How Embree builds its BVH: kForTracing (its default) for scenes rendered from many views,
-  // kForOneUse for a scene built per request: about 3x faster to build (2 against 5.7 ms for
-  // 38,000 triangles) and about a quarter slower to trace (24 views of 85x76 rays: 13 against
-  // 10.4 ms), which nets about 1.3 ms for the refit in context (docs/engine.md).
+  // kForOneUse for a scene built per request: about 3x faster to build and a quarter slower to
+  // trace, a net gain for a scene traced from one set of views (the refit in context).
   enum class Build { kForTracing, kForOneUse };
   // The scene is copied into Embree's buffers; the mesh may be dropped afterwards.
   static Result<RayCaster> Create(const TriangleMesh& scene, Build build = Build::kForTracing);

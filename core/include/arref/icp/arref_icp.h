@@ -28,7 +28,7 @@ struct ArrefIcpParams {
   int position_steps = 1;          // grid of (2 * steps + 1)^2 positions
   double expand_below_score = 0.35;  // widen the search when the best coarse score is lower
   std::size_t coarse_points = 250;
-  // The refinement's 8 and 4 cm levels (arref_icp.cpp): fewer points lose runs within 10 mm.
+  // The refinement's 8 and 4 cm levels (arref_icp.cpp): fewer points lose accuracy (docs/engine.md).
   std::size_t approach_points = 2000;
   std::size_t fine_points = 2000;
   // The last polish, on the surface refitted in context: more points average the mesh's bends.

@@ -47,7 +47,7 @@ struct IcpSettings {
   // So does a robust cost (mean over the source points) that changed by less than this fraction
   // since the last iteration: the termination of Besl & McKay 1992 (their tau, relative here).
   // Near the end a level can slide ~1 mm per iteration along a valley where the cost is flat;
-  // those iterations moved no run of the bench closer (docs/engine.md). 0 turns it off.
+  // those iterations bring no fit closer (docs/engine.md, "Refinement"). 0 turns it off.
   double converged_cost_ratio = 1e-3;
 };
 

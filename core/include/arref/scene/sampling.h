@@ -14,7 +14,7 @@ PointCloud SampleSurface(const TriangleMesh& mesh, std::size_t n, std::uint64_t 
 
 // The same points reordered cell by cell (cells of cell_m, z-major), so that consecutive points
 // lie close together. Nearest-neighbour queries in that order reuse the k-d tree nodes in cache:
-// an ICP iteration over 5,000 points took about 10 % less time (bench/icp_benchmark.cpp).
+// an ICP iteration over 5,000 points runs about 10 % faster (bench/icp_benchmark.cpp).
 PointCloud SpatiallyOrdered(const PointCloud& cloud, double cell_m = 0.1);
 
 // Every k-th point so that at most `limit` remain (deterministic, spread over the cloud), spatially

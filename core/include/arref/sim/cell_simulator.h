@@ -51,7 +51,7 @@ struct ScanOptions {
 
 // Head-tracking error as one knob: sigma_m of position, and 75 deg per metre of orientation
 // (the defaults' 0.3 deg at 4 mm). The fused mesh is distorted by it, so it bounds how close
-// any registration can come to the truth (docs/engine.md: 100 % within 10 mm without it).
+// any registration can come to the truth (docs/engine.md, "What limits accuracy").
 void SetPoseJitter(ScanOptions* scan, double sigma_m);
 
 // TSDF fusion of the depth images and extraction of a coarse mesh.

@@ -134,8 +134,7 @@ Status ReadVertices(const pb::SurfaceUpsert& m, std::vector<Vec3f>* out) {
 }  // namespace
 
 Result<Surface> SurfaceFromProto(const pb::SurfaceUpsert& m) {
-  auto frame = FromProto(m.frame());
-  if (!frame.ok()) return frame.status();
+  ARREF_ASSIGN_OR_RETURN(const FrameConvention frame, FromProto(m.frame()));
   Surface s;
   s.id = m.surface_id();
   s.timestamp_s = m.timestamp_s();
@@ -146,10 +145,10 @@ Result<Surface> SurfaceFromProto(const pb::SurfaceUpsert& m) {
   s.mesh.triangles.resize(m.triangles_size() / 3);
   for (int i = 0; i < m.triangles_size(); ++i) s.mesh.triangles[i / 3][i % 3] = m.triangles(i);
   if (!m.has_t_world_surface()) return Status::InvalidArgument("T_world_surface missing");
-  auto T = PoseFromProto(m.t_world_surface(), *frame);
+  auto T = PoseFromProto(m.t_world_surface(), frame);
   if (!T.ok()) return T.status().WithContext("T_world_surface");
   s.T_world_surface = *T;
-  MeshToRos(s.mesh, *frame);
+  MeshToRos(s.mesh, frame);
   return s;
 }
 

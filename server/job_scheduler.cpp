@@ -5,13 +5,6 @@
 #include <algorithm>
 
 namespace arref::server {
-namespace {
-
-double MsSince(Job::Clock::time_point t) {
-  return std::chrono::duration<double, std::milli>(Job::Clock::now() - t).count();
-}
-
-}  // namespace
 
 void FinishCancelled(Job& job, const std::string& why) {
   JobOutcome outcome;
@@ -55,7 +48,7 @@ JobScheduler::CancelResult JobScheduler::Cancel(std::uint64_t session_id, std::u
     return CancelResult::kRemovedFromQueue;
   }
   if (auto it = std::find_if(running_.begin(), running_.end(), matches); it != running_.end() && !(*it)->finished) {
-    (*it)->cancel_requested = true;
+    (*it)->cancel.Cancel();
     return CancelResult::kFlaggedRunning;
   }
   return CancelResult::kNotFound;
@@ -73,7 +66,7 @@ std::vector<std::shared_ptr<Job>> JobScheduler::CancelSession(std::uint64_t sess
     }
   }
   for (auto& job : running_)
-    if (job->session_id == session_id) job->cancel_requested = true;
+    if (job->session_id == session_id) job->cancel.Cancel();
   return removed;
 }
 
@@ -91,7 +84,7 @@ std::vector<std::shared_ptr<Job>> JobScheduler::CloseQueue() {
 
 void JobScheduler::CancelAllRunning() {
   std::lock_guard lock(mu_);
-  for (auto& job : running_) job->cancel_requested = true;
+  for (auto& job : running_) job->cancel.Cancel();
 }
 
 std::size_t JobScheduler::running() const {
@@ -99,9 +92,15 @@ std::size_t JobScheduler::running() const {
   return running_.size();
 }
 
-std::size_t JobScheduler::queued() const {
-  std::lock_guard lock(mu_);
-  return queue_.size();
+void JobScheduler::NotifyWhenDrained(std::function<void()> drained) {
+  {
+    std::lock_guard lock(mu_);
+    if (!closed_ || !running_.empty()) {
+      drained_ = std::move(drained);
+      return;
+    }
+  }
+  if (drained) drained();
 }
 
 void JobScheduler::Join() {
@@ -134,8 +133,13 @@ void JobScheduler::WorkerLoop(int index) {
     // sessions, so the result must already be on its way.
     job->finished = true;  // a client may answer the result with a cancel before running_ is updated
     if (job->on_done) job->on_done(*job, outcome);
-    std::lock_guard lock(mu_);
-    running_.erase(std::find(running_.begin(), running_.end(), job));
+    std::function<void()> drained;
+    {
+      std::lock_guard lock(mu_);
+      running_.erase(std::find(running_.begin(), running_.end(), job));
+      if (closed_ && running_.empty()) drained = std::exchange(drained_, nullptr);
+    }
+    if (drained) drained();
   }
 }
 

@@ -16,6 +16,8 @@
 #include <thread>
 #include <vector>
 
+#include "arref/base/cancel.h"
+#include "arref/base/clock.h"
 #include "arref/base/frames.h"
 #include "arref/base/geometry.h"
 #include "arref/pipeline/pipeline.h"
@@ -32,7 +34,6 @@ struct JobOutcome {
 };
 
 struct Job {
-  using Clock = std::chrono::steady_clock;
   std::uint64_t session_id = 0;
   std::uint64_t request_id = 0;
   std::string robot_id;
@@ -41,8 +42,10 @@ struct Job {
   Iso3 T_world_seed = Iso3::Identity();
   RegistrationOptions options;
   FrameConvention result_frame = FrameConvention::kUnity;
-  Clock::time_point accepted_at = Clock::now();
-  std::atomic<bool> cancel_requested{false};
+  SteadyClock::time_point accepted_at = SteadyClock::now();
+  // The one way to stop a job: Cancel messages, a closed session and shutdown cancel it; the
+  // runner passes it to the pipeline, which returns Status::Cancelled.
+  CancelToken cancel;
   std::atomic<bool> finished{false};  // its outcome is being delivered: too late to cancel
 
   // Called from worker threads (or the thread that cancels a queued job). on_done is called
@@ -51,7 +54,7 @@ struct Job {
   std::function<void(const Job&, const JobOutcome&)> on_done;
 };
 
-// Runs a job to completion on a worker thread; must honour job.cancel_requested.
+// Runs a job to completion on a worker thread; must honour job.cancel.
 using JobRunner = std::function<JobOutcome(Job& job)>;
 
 class JobScheduler {
@@ -75,7 +78,10 @@ class JobScheduler {
   std::vector<std::shared_ptr<Job>> CloseQueue();
   void CancelAllRunning();
   std::size_t running() const;
-  std::size_t queued() const;
+  // Calls `drained` once, from the thread that sees it (a worker, or the caller if it is
+  // already so), as soon as the queue is closed and no job runs any more. Every result has
+  // been handed to on_done by then. One callback at a time; a later call replaces it.
+  void NotifyWhenDrained(std::function<void()> drained);
   // Waits for the workers to exit (after CloseQueue and the running jobs end).
   void Join();
 
@@ -90,6 +96,7 @@ class JobScheduler {
   std::deque<std::shared_ptr<Job>> queue_;
   std::vector<std::shared_ptr<Job>> running_;
   bool closed_ = false;
+  std::function<void()> drained_;
   std::vector<std::thread> threads_;
 };
 

@@ -68,10 +68,8 @@ Result<RobotRegistry::ModelCloud> RobotRegistry::Model(const ServedRobot& robot,
     lru_.remove(key);
     lru_.push_front(key);
     if (auto it = cache_.find(key); it != cache_.end()) {
-      ++hits_;
       entry = it->second;
     } else {
-      ++misses_;
       cache_.emplace(key, promise.get_future().share());
       EvictLocked();
     }
@@ -94,16 +92,6 @@ void RobotRegistry::EvictLocked() {
     cache_.erase(lru_.back());  // a waiter holds its own shared_future copy, so this is safe
     lru_.pop_back();
   }
-}
-
-std::size_t RobotRegistry::cache_hits() const {
-  std::lock_guard lock(mu_);
-  return hits_;
-}
-
-std::size_t RobotRegistry::cache_misses() const {
-  std::lock_guard lock(mu_);
-  return misses_;
 }
 
 }  // namespace arref::server

@@ -42,8 +42,6 @@ class RobotRegistry {
   // Sampled once per key; concurrent callers with the same key wait for the first.
   Result<ModelCloud> Model(const ServedRobot& robot, const JointValues& joints, std::size_t samples,
                            std::uint64_t seed);
-  std::size_t cache_hits() const;
-  std::size_t cache_misses() const;
 
  private:
   using Entry = std::shared_future<Result<ModelCloud>>;
@@ -55,8 +53,6 @@ class RobotRegistry {
   mutable std::mutex mu_;
   std::map<std::string, Entry> cache_;
   std::list<std::string> lru_;  // front: most recently used
-  std::size_t hits_ = 0;
-  std::size_t misses_ = 0;
 };
 
 }  // namespace arref::server

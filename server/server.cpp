@@ -10,6 +10,7 @@
 #include <mutex>
 #include <thread>
 
+#include "arref/base/clock.h"
 #include "robot_registry.h"
 #include "session.h"
 #include "systemd_notify.h"
@@ -17,47 +18,38 @@
 namespace arref::server {
 namespace {
 
-using Clock = std::chrono::steady_clock;
-constexpr auto kPollInterval = std::chrono::milliseconds(50);
 constexpr auto kCancelGrace = std::chrono::seconds(10);   // after cancelling overdue jobs
 constexpr auto kFlushGrace = std::chrono::seconds(5);     // for sessions to send their last bytes
 
-// Thrown from the progress callback to stop a running job at a stage boundary.
-struct JobCancelled {};
-
-double MsSince(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
+Status CancelledWhileRunning() { return Status::Cancelled("cancelled while running"); }
 
 JobOutcome RunRegistrationJob(Job& job, RobotRegistry& robots) {
   JobOutcome out;
   out.queue_ms = MsSince(job.accepted_at);
-  const auto start = Clock::now();
-  auto check_cancel = [&job] {
-    if (job.cancel_requested) throw JobCancelled{};
+  const auto start = SteadyClock::now();
+  const auto finish = [&](Status status) -> JobOutcome {
+    out.status = std::move(status);
+    out.run_ms = MsSince(start);
+    return std::move(out);
   };
-  try {
-    check_cancel();
-    if (job.on_progress) job.on_progress("model", 0.0);
-    const ServedRobot* robot = robots.Find(job.robot_id);
-    auto model = robots.Model(*robot, job.joints, job.options.model_samples, job.options.sample_seed);
-    if (!model.ok()) {
-      out.status = model.status().WithContext("robot model");
-      return out;
-    }
-    check_cancel();
-    const ProgressFn progress = [&](std::string_view stage, double fraction) {
-      check_cancel();
-      if (job.on_progress) job.on_progress(stage, 0.05 + 0.95 * fraction);
-    };
-    auto report = RegisterScene(**model, job.scene_world, job.T_world_seed, job.options, progress);
-    if (report.ok())
-      out.report = std::move(*report);
-    else
-      out.status = report.status();
-  } catch (const JobCancelled&) {
-    out.status = Status::Cancelled("cancelled while running");
-  }
-  out.run_ms = MsSince(start);
-  return out;
+  if (Cancelled(&job.cancel)) return finish(CancelledWhileRunning());
+  if (job.on_progress) job.on_progress("model", 0.0);
+  const ServedRobot* robot = robots.Find(job.robot_id);
+  auto model = robots.Model(*robot, job.joints, job.options.model_samples, job.options.sample_seed);
+  if (!model.ok()) return finish(model.status().WithContext("robot model"));
+  if (Cancelled(&job.cancel)) return finish(CancelledWhileRunning());
+  const ProgressFn progress = [&job](std::string_view stage, double fraction) {
+    // A cancelled job reports no further progress: its next message is the CANCELLED result.
+    if (job.on_progress && !Cancelled(&job.cancel)) job.on_progress(stage, 0.05 + 0.95 * fraction);
+  };
+  auto report = RegisterScene(**model, job.scene_world, job.T_world_seed, job.options, progress, &job.cancel);
+  // A cancel that arrives after the pipeline's last check still wins, as it did when every
+  // stage boundary (the final "done" included) was a cancellation point.
+  if (report.status().code() == StatusCode::kCancelled || Cancelled(&job.cancel))
+    return finish(CancelledWhileRunning());
+  if (!report.ok()) return finish(report.status());
+  out.report = std::move(*report);
+  return finish(Status::Ok());
 }
 
 }  // namespace
@@ -74,7 +66,8 @@ struct Server::Impl {
         acceptor(strand),
         signals(strand, SIGINT, SIGTERM),
         watchdog_timer(strand),
-        shutdown_timer(strand) {}
+        jobs_timer(strand),
+        sessions_timer(strand) {}
 
   ~Impl() {
     for (auto& job : jobs.CloseQueue()) FinishCancelled(*job, "server stopping");
@@ -89,8 +82,13 @@ struct Server::Impl {
   std::vector<std::shared_ptr<Session>> SessionsSnapshot();
   void ArmWatchdog(std::chrono::microseconds interval);
   void BeginShutdown(const std::string& why);
-  void WaitForRunningJobs(Clock::time_point deadline, bool cancelled);
-  void WaitForSessionsClosed(Clock::time_point deadline);
+  // Each phase waits on a timer for its grace period; the event it waits for (the last job
+  // ended, the last session closed) cancels that timer, so it proceeds at once.
+  void WaitForRunningJobs(std::chrono::milliseconds grace, bool cancelled);
+  void OnJobsDrained();
+  void CloseSessions();
+  void OnSessionsClosed();
+  void StopServing();
 
   ServerConfig config;
   std::unique_ptr<RobotRegistry> robots;
@@ -104,7 +102,11 @@ struct Server::Impl {
   tcp::acceptor acceptor;
   net::signal_set signals;
   net::steady_timer watchdog_timer;
-  net::steady_timer shutdown_timer;
+  net::steady_timer jobs_timer;      // grace for running jobs
+  net::steady_timer sessions_timer;  // grace for sessions to flush and close
+  bool jobs_drained = false;         // on the strand, like the shutdown phases
+  bool closing_sessions = false;
+  bool stopped = false;
   std::atomic<std::uint16_t> port{0};
   std::mutex sessions_mu;
   std::map<std::uint64_t, std::shared_ptr<Session>> sessions;
@@ -160,8 +162,13 @@ void Server::Impl::OnAccept(const boost::system::error_code& ec, tcp::socket soc
 }
 
 void Server::Impl::OnSessionClosed(std::uint64_t id) {
-  std::lock_guard lock(sessions_mu);
-  sessions.erase(id);
+  bool none_left = false;
+  {
+    std::lock_guard lock(sessions_mu);
+    sessions.erase(id);
+    none_left = sessions.empty();
+  }
+  if (none_left && shutting_down) net::post(strand, [this] { OnSessionsClosed(); });
 }
 
 std::vector<std::shared_ptr<Session>> Server::Impl::SessionsSnapshot() {
@@ -194,46 +201,63 @@ void Server::Impl::BeginShutdown(const std::string& why) {
                queued.size(), jobs.running(), config.shutdown_grace_s);
   for (const auto& job : queued) FinishCancelled(*job, "server shutting down before the job started");
   for (const auto& s : SessionsSnapshot()) s->NotifyShutdown(config.shutdown_grace_s);
-  const auto grace = std::chrono::milliseconds(static_cast<long long>(config.shutdown_grace_s * 1000));
-  WaitForRunningJobs(Clock::now() + grace, false);
+  jobs.NotifyWhenDrained([this] { net::post(strand, [this] { OnJobsDrained(); }); });
+  WaitForRunningJobs(std::chrono::milliseconds(static_cast<long long>(config.shutdown_grace_s * 1000)), false);
 }
 
-void Server::Impl::WaitForRunningJobs(Clock::time_point deadline, bool cancelled) {
-  const bool overdue = Clock::now() >= deadline;
-  if (jobs.running() > 0 && !(overdue && cancelled)) {
-    if (overdue) {
+void Server::Impl::WaitForRunningJobs(std::chrono::milliseconds grace, bool cancelled) {
+  if (jobs_drained) return;
+  jobs_timer.expires_after(grace);
+  jobs_timer.async_wait([this, cancelled](const boost::system::error_code& ec) {
+    if (ec || jobs_drained) return;  // cancelled by OnJobsDrained, which went on already
+    if (!cancelled) {
       spdlog::warn("{} jobs still running after the grace period: cancelling them", jobs.running());
       jobs.CancelAllRunning();
-      deadline = Clock::now() + kCancelGrace;
-      cancelled = true;
+      WaitForRunningJobs(std::chrono::duration_cast<std::chrono::milliseconds>(kCancelGrace), true);
+      return;
     }
-    shutdown_timer.expires_after(kPollInterval);
-    shutdown_timer.async_wait([this, deadline, cancelled](const boost::system::error_code& ec) {
-      if (!ec) WaitForRunningJobs(deadline, cancelled);
-    });
-    return;
-  }
-  if (jobs.running() > 0) spdlog::error("{} jobs did not stop; their sessions close without a result", jobs.running());
-  // Every result has been posted to its session before its job left `running`, so a close
-  // posted now is queued behind it.
-  for (const auto& s : SessionsSnapshot()) s->CloseGracefully("server shutting down");
-  WaitForSessionsClosed(Clock::now() + kFlushGrace);
+    spdlog::error("{} jobs did not stop; their sessions close without a result", jobs.running());
+    CloseSessions();
+  });
 }
 
-void Server::Impl::WaitForSessionsClosed(Clock::time_point deadline) {
-  std::size_t open = 0;
-  {
-    std::lock_guard lock(sessions_mu);
-    open = sessions.size();
-  }
-  if (open > 0 && Clock::now() < deadline) {
-    shutdown_timer.expires_after(kPollInterval);
-    shutdown_timer.async_wait([this, deadline](const boost::system::error_code& ec) {
-      if (!ec) WaitForSessionsClosed(deadline);
-    });
-    return;
-  }
-  if (open > 0) spdlog::warn("{} sessions did not close in time", open);
+void Server::Impl::OnJobsDrained() {
+  if (jobs_drained) return;
+  jobs_drained = true;
+  jobs_timer.cancel();
+  CloseSessions();
+}
+
+void Server::Impl::CloseSessions() {
+  if (closing_sessions) return;
+  closing_sessions = true;
+  // Every result has been posted to its session before its job left `running`, so a close
+  // posted now is queued behind it.
+  const auto open = SessionsSnapshot();
+  if (open.empty()) return StopServing();
+  for (const auto& s : open) s->CloseGracefully("server shutting down");
+  sessions_timer.expires_after(kFlushGrace);
+  sessions_timer.async_wait([this](const boost::system::error_code& ec) {
+    if (ec || stopped) return;
+    std::size_t left = 0;
+    {
+      std::lock_guard lock(sessions_mu);
+      left = sessions.size();
+    }
+    spdlog::warn("{} sessions did not close in time", left);
+    StopServing();
+  });
+}
+
+void Server::Impl::OnSessionsClosed() {
+  if (!closing_sessions || stopped) return;  // sessions may all leave before the jobs end
+  sessions_timer.cancel();
+  StopServing();
+}
+
+void Server::Impl::StopServing() {
+  if (stopped) return;
+  stopped = true;
   signals.cancel();
   watchdog_timer.cancel();
   ioc.stop();
@@ -246,9 +270,8 @@ Server::~Server() = default;
 
 Result<std::unique_ptr<Server>> Server::Create(ServerConfig config) {
   ARREF_RETURN_IF_ERROR(ValidateServerConfig(config));
-  auto robots = RobotRegistry::Load(config.robots, config.model_cache_entries);
-  if (!robots.ok()) return robots.status();
-  auto impl = std::make_unique<Impl>(std::move(config), std::move(*robots));
+  ARREF_ASSIGN_OR_RETURN(auto robots, RobotRegistry::Load(config.robots, config.model_cache_entries));
+  auto impl = std::make_unique<Impl>(std::move(config), std::move(robots));
   return std::unique_ptr<Server>(new Server(std::move(impl)));
 }
 

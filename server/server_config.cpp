@@ -153,10 +153,9 @@ Status ReadRobots(const YAML::Node& n, const std::string& base_dir, ServerConfig
   if (!n.IsSequence()) return Status::InvalidArgument("robots: expected a list");
   std::set<std::string> ids;
   for (std::size_t i = 0; i < n.size(); ++i) {
-    auto robot = ReadRobot(n[i], i, base_dir);
-    if (!robot.ok()) return robot.status();
-    if (!ids.insert(robot->id).second) return Status::InvalidArgument("robots: duplicate id '" + robot->id + "'");
-    c.robots.push_back(std::move(*robot));
+    ARREF_ASSIGN_OR_RETURN(RobotConfig robot, ReadRobot(n[i], i, base_dir));
+    if (!ids.insert(robot.id).second) return Status::InvalidArgument("robots: duplicate id '" + robot.id + "'");
+    c.robots.push_back(std::move(robot));
   }
   return Status::Ok();
 }
@@ -213,9 +212,8 @@ Result<ServerConfig> LoadServerConfig(const std::string& path) {
 }
 
 Result<ServerConfig> LoadDefaultServerConfig() {
-  auto path = FindConfigFile("arref-server.yaml");
-  if (!path.ok()) return path.status();
-  return LoadServerConfig(*path);
+  ARREF_ASSIGN_OR_RETURN(const std::string path, FindConfigFile("arref-server.yaml"));
+  return LoadServerConfig(path);
 }
 
 }  // namespace arref::server

@@ -4,144 +4,23 @@
 #include <spdlog/spdlog.h>
 
 #include <chrono>
-#include <cmath>
-#include <cstring>
+
+#include "arref/base/clock.h"
+#include "convert.h"
+#include "request_builder.h"
 
 namespace arref::server {
 namespace {
 
 namespace pb = wire::pb;
-using Clock = std::chrono::steady_clock;
 
 constexpr std::size_t kReadChunk = 64 * 1024;
 constexpr std::size_t kMaxPingPayload = 64 * 1024;
-constexpr std::size_t kMaxHeadPathPositions = 10000;  // RegisterRequest.head_path (arref.proto)
 constexpr auto kLinger = std::chrono::seconds(2);  // time to flush a final error before closing
 
 std::chrono::milliseconds Seconds(double s) { return std::chrono::milliseconds(static_cast<long long>(s * 1000)); }
 
-double MsSince(Clock::time_point t) { return std::chrono::duration<double, std::milli>(Clock::now() - t).count(); }
-
-pb::ErrorCode ErrorCodeFor(const Status& status) {
-  switch (status.code()) {
-    case StatusCode::kInvalidArgument: return pb::ERROR_CODE_INVALID_ARGUMENT;
-    case StatusCode::kCancelled: return pb::ERROR_CODE_CANCELLED;
-    case StatusCode::kResourceExhausted: return pb::ERROR_CODE_LIMIT_EXCEEDED;
-    case StatusCode::kInternal: return pb::ERROR_CODE_INTERNAL;
-    default: return pb::ERROR_CODE_REGISTRATION_FAILED;
-  }
-}
-
-pb::ResultStatus ToProto(ResultStatus status) {
-  switch (status) {
-    case ResultStatus::kOk: return pb::RESULT_STATUS_OK;
-    case ResultStatus::kLowConfidence: return pb::RESULT_STATUS_LOW_CONFIDENCE;
-    case ResultStatus::kFailed: return pb::RESULT_STATUS_FAILED;
-  }
-  return pb::RESULT_STATUS_FAILED;
-}
-
-void FillReport(const RegistrationReport& report, FrameConvention frame, pb::Result* r) {
-  r->set_status(ToProto(report.status));
-  if (report.status == ResultStatus::kFailed) r->set_error_code(pb::ERROR_CODE_REGISTRATION_FAILED);
-  r->set_message(report.status_reason);
-  r->set_rms_points(report.rms_points);
-  r->set_score(report.score);
-  r->set_margin(report.margin);
-  r->set_hypotheses(report.hypotheses);
-  for (const auto& stage : report.stages_run) r->add_stages(stage);
-  *r->mutable_t_world_base() = wire::PoseToProto(report.T_world_base, frame);
-  r->set_frame(wire::ToProto(frame));
-  wire::MatrixToProto(report.T_world_base, r->mutable_t_world_base_internal());
-  r->set_rms_m(report.rms_m);
-  r->set_inlier_fraction(report.inlier_fraction);
-  r->set_iterations(report.iterations);
-  r->set_converged(report.converged);
-  r->set_method(report.method);
-  for (const auto& t : report.timings) {
-    auto* timing = r->add_timings();
-    timing->set_stage(t.stage);
-    timing->set_ms(t.ms);
-  }
-  r->set_scene_triangles(report.scene_triangles);
-  r->set_scene_points(report.scene_points);
-  r->set_model_points(report.model_points);
-}
-
-pb::ServerMessage ResultMessage(const Job& job, const JobOutcome& outcome) {
-  pb::ServerMessage message;
-  pb::Result* r = message.mutable_result();
-  r->set_request_id(job.request_id);
-  r->set_robot_id(job.robot_id);
-  r->set_session_id(job.session_id);
-  r->set_queue_ms(outcome.queue_ms);
-  r->set_server_ms(MsSince(job.accepted_at));
-  if (outcome.report) {
-    FillReport(*outcome.report, job.result_frame, r);
-  } else {
-    const bool cancelled = outcome.status.code() == StatusCode::kCancelled;
-    r->set_status(cancelled ? pb::RESULT_STATUS_CANCELLED : pb::RESULT_STATUS_FAILED);
-    r->set_error_code(ErrorCodeFor(outcome.status));
-    r->set_message(outcome.status.message());
-  }
-  return message;
-}
-
-std::shared_ptr<const std::string> Frame(const pb::ServerMessage& message) {
-  return std::make_shared<const std::string>(wire::EncodeFrame(message));
-}
-
-Result<JointValues> JointsFromProto(const pb::JointState& m) {
-  if (m.names_size() != m.positions_size())
-    return Status::InvalidArgument(fmt::format("joint state has {} names but {} positions", m.names_size(),
-                                               m.positions_size()));
-  JointValues joints;
-  for (int i = 0; i < m.names_size(); ++i) {
-    if (!std::isfinite(m.positions(i)))
-      return Status::InvalidArgument("joint '" + m.names(i) + "' position is not finite");
-    joints[m.names(i)] = m.positions(i);
-  }
-  return joints;
-}
-
-// Range check of an optional override; the message names the field and its range.
-template <typename T>
-Status CheckRange(const char* field, T value, T lo, T hi) {
-  if (!(value >= lo && value <= hi))
-    return Status::InvalidArgument(fmt::format("params.{} = {} is outside [{}, {}]", field, value, lo, hi));
-  return Status::Ok();
-}
-
 }  // namespace
-
-// ---------------------------------------------------------------- SubscriberHub
-
-void SubscriberHub::Set(const std::string& robot_id, const std::shared_ptr<Session>& session, bool subscribe) {
-  std::lock_guard lock(mu_);
-  if (subscribe)
-    subscribers_[robot_id][session->id()] = session;
-  else
-    subscribers_[robot_id].erase(session->id());
-}
-
-void SubscriberHub::RemoveSession(std::uint64_t session_id) {
-  std::lock_guard lock(mu_);
-  for (auto& [robot, sessions] : subscribers_) sessions.erase(session_id);
-}
-
-void SubscriberHub::Publish(const std::string& robot_id, const std::shared_ptr<const std::string>& frame,
-                            std::uint64_t except_session) {
-  std::vector<std::shared_ptr<Session>> targets;
-  {
-    std::lock_guard lock(mu_);
-    auto it = subscribers_.find(robot_id);
-    if (it == subscribers_.end()) return;
-    for (const auto& [id, weak] : it->second)
-      if (id != except_session)
-        if (auto s = weak.lock()) targets.push_back(std::move(s));
-  }
-  for (auto& s : targets) s->SendFrame(frame);
-}
 
 // ---------------------------------------------------------------- Session: life cycle
 
@@ -149,6 +28,7 @@ Session::Session(tcp::socket socket, ServerContext& context, std::uint64_t id)
     : socket_(std::move(socket)),
       ctx_(context),
       id_(id),
+      rx_(context.config.limits.max_message_bytes, 4 * kReadChunk),
       idle_timer_(socket_.get_executor()),
       write_timer_(socket_.get_executor()),
       linger_timer_(socket_.get_executor()) {
@@ -191,8 +71,8 @@ void Session::ArmIdleTimer() {
 
 void Session::ReadMore() {
   if (state_ >= State::kClosing) return;
-  if (rx_.size() - rx_size_ < kReadChunk) rx_.resize(rx_size_ + kReadChunk);
-  socket_.async_read_some(net::buffer(rx_.data() + rx_size_, rx_.size() - rx_size_),
+  const auto space = rx_.Buffer(kReadChunk);
+  socket_.async_read_some(net::buffer(space.data(), space.size()),
                           [self = shared_from_this()](const boost::system::error_code& ec, std::size_t n) {
                             self->OnRead(ec, n);
                           });
@@ -204,43 +84,34 @@ void Session::OnRead(const boost::system::error_code& ec, std::size_t bytes) {
     CloseNow(ec == net::error::eof ? "client closed the connection" : "read failed: " + ec.message());
     return;
   }
-  rx_size_ += bytes;
+  rx_.Commit(bytes);
   ArmIdleTimer();
-  if (ProcessBuffer()) ReadMore();
+  if (ProcessFrames()) ReadMore();
 }
 
-bool Session::ProcessBuffer() {
-  const std::size_t max_body = ctx_.config.limits.max_message_bytes;
-  std::size_t offset = 0;
+bool Session::ProcessFrames() {
+  using Kind = wire::FrameDecoder::Frame::Kind;
   while (state_ < State::kClosing) {
-    const wire::FrameHeader h = wire::DecodeFrameHeader(rx_.data() + offset, rx_size_ - offset, max_body);
-    if (h.state == wire::FrameHeader::State::kNeedMore) break;
-    if (h.state == wire::FrameHeader::State::kTooLarge) {
+    const wire::FrameDecoder::Frame f = rx_.Next();
+    if (f.kind == Kind::kNeedMore) break;
+    if (f.kind == Kind::kTooLarge) {
       FailAndClose(pb::ERROR_CODE_MESSAGE_TOO_LARGE,
                    fmt::format("message of {} bytes exceeds the limit of {} bytes (limits.max_message_bytes)",
-                               h.body_bytes, max_body));
+                               f.body_bytes, ctx_.config.limits.max_message_bytes));
       return false;
     }
-    if (h.state == wire::FrameHeader::State::kBadVarint) {
+    if (f.kind == Kind::kBadVarint) {
       FailAndClose(pb::ERROR_CODE_MALFORMED_MESSAGE, "invalid varint length prefix");
       return false;
     }
-    const std::size_t frame_bytes = h.header_bytes + h.body_bytes;
-    if (rx_size_ - offset < frame_bytes) break;
     pb::ClientMessage message;
-    if (!message.ParseFromArray(rx_.data() + offset + h.header_bytes, static_cast<int>(h.body_bytes))) {
+    if (!message.ParseFromArray(f.body.data(), static_cast<int>(f.body.size()))) {
       FailAndClose(pb::ERROR_CODE_MALFORMED_MESSAGE,
-                   fmt::format("a frame of {} bytes does not parse as arref.v1.ClientMessage", h.body_bytes));
+                   fmt::format("a frame of {} bytes does not parse as arref.v1.ClientMessage", f.body_bytes));
       return false;
     }
-    offset += frame_bytes;
     Handle(message);
   }
-  if (offset > 0) {
-    std::memmove(rx_.data(), rx_.data() + offset, rx_size_ - offset);
-    rx_size_ -= offset;
-  }
-  if (rx_size_ == 0 && rx_.size() > 4 * kReadChunk) rx_ = std::vector<std::uint8_t>();  // give big buffers back
   return state_ < State::kClosing;
 }
 
@@ -351,7 +222,7 @@ void Session::OnSurfaceRemove(const pb::SurfaceRemove& m) {
 }
 
 void Session::OnSeedPose(const pb::SeedPose& m) {
-  auto frame = wire::FromProto(m.frame());
+  const auto frame = wire::FromProto(m.frame());
   if (!frame.ok()) return SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "SeedPose: " + frame.status().message());
   auto T = wire::PoseFromProto(m.t_world_seed(), *frame);
   if (!T.ok()) return SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "SeedPose.T_world_seed: " + T.status().message());
@@ -360,7 +231,7 @@ void Session::OnSeedPose(const pb::SeedPose& m) {
 }
 
 void Session::OnJointState(const pb::JointState& m) {
-  auto joints = JointsFromProto(m);
+  auto joints = wire::JointsFromProto(m);
   if (!joints.ok()) return SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "JointState: " + joints.status().message());
   if (!m.robot_id().empty()) {
     const ServedRobot* robot = ctx_.robots.Find(m.robot_id());
@@ -382,7 +253,7 @@ void Session::OnCancel(const pb::Cancel& m) {
       break;
     case JobScheduler::CancelResult::kFlaggedRunning:
       spdlog::info("session {}: request {} cancel requested while running", id_, m.request_id());
-      break;  // the worker answers CANCELLED at its next stage boundary
+      break;  // its token is cancelled: the worker answers CANCELLED when the pipeline stops
     case JobScheduler::CancelResult::kNotFound:
       SendError(pb::ERROR_CODE_UNKNOWN_REQUEST,
                 fmt::format("request {} is not in flight (never accepted or already answered)", m.request_id()),
@@ -409,7 +280,7 @@ void Session::OnPing(const pb::Ping& m) {
   pb::ServerMessage reply;
   reply.mutable_pong()->set_nonce(m.nonce());
   reply.mutable_pong()->set_payload(m.payload());
-  reply.mutable_pong()->set_server_time_s(std::chrono::duration<double>(Clock::now().time_since_epoch()).count());
+  reply.mutable_pong()->set_server_time_s(std::chrono::duration<double>(SteadyClock::now().time_since_epoch()).count());
   Send(reply);
 }
 
@@ -448,101 +319,20 @@ void Session::OnRegisterRequest(const pb::RegisterRequest& m) {
 
 std::shared_ptr<Job> Session::MakeJob(const pb::RegisterRequest& m) {
   const std::uint64_t rid = m.request_id();
-  const ServedRobot* robot = ctx_.robots.Find(m.robot_id());
-  if (!robot) {
-    SendError(pb::ERROR_CODE_UNKNOWN_ROBOT,
-              fmt::format("robot '{}' is not served here (served: {})", m.robot_id(), ctx_.robots.Ids()), rid);
-    return nullptr;
-  }
-  auto job = std::make_shared<Job>();
-  FrameConvention frame = seed_frame_;
-  if (m.has_seed()) {
-    auto seed_frame = wire::FromProto(m.seed().frame());
-    auto T = seed_frame.ok() ? wire::PoseFromProto(m.seed().t_world_seed(), *seed_frame) : Result<Iso3>(seed_frame.status());
-    if (!T.ok()) {
-      SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "RegisterRequest.seed: " + T.status().message(), rid);
-      return nullptr;
-    }
-    job->T_world_seed = *T;
-    frame = *seed_frame;
-  } else if (seed_) {
-    job->T_world_seed = *seed_;
-  } else {
-    SendError(pb::ERROR_CODE_NO_SEED, "no seed: send SeedPose (or RegisterRequest.seed) before registering", rid);
-    return nullptr;
-  }
-  JointValues given;
-  if (m.has_joints()) {
-    auto j = JointsFromProto(m.joints());
-    if (!j.ok()) {
-      SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "RegisterRequest.joints: " + j.status().message(), rid);
-      return nullptr;
-    }
-    given = std::move(*j);
-  } else if (auto it = joints_.find(m.robot_id()); it != joints_.end()) {
-    given = it->second;
-  } else if (auto any = joints_.find(""); any != joints_.end()) {
-    given = any->second;
-  }
-  auto joints = ctx_.robots.ResolveJoints(*robot, given);
-  if (!joints.ok()) {
-    SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "joints: " + joints.status().message(), rid);
-    return nullptr;
-  }
-  auto options = RequestOptions(m);
-  if (!options.ok()) {
-    SendError(pb::ERROR_CODE_INVALID_ARGUMENT, options.status().message(), rid);
+  auto job = BuildJob(m, ctx_.robots, ctx_.config.registration,
+                      SessionDefaults{.seed = seed_, .seed_frame = seed_frame_, .joints = &joints_});
+  if (!job.ok()) {
+    SendError(RequestErrorCode(job.status()), job.status().message(), rid);
     return nullptr;
   }
   if (spatial_.size() == 0) {
     SendError(pb::ERROR_CODE_NO_SCENE, "the session holds no surfaces: send SurfaceUpsert messages first", rid);
     return nullptr;
   }
-  if (m.result_frame() != pb::FRAME_CONVENTION_UNSPECIFIED) {
-    auto result_frame = wire::FromProto(m.result_frame());
-    if (result_frame.ok()) frame = *result_frame;
-  }
-  job->session_id = id_;
-  job->request_id = rid;
-  job->robot_id = m.robot_id();
-  job->joints = std::move(*joints);
-  job->scene_world = spatial_.MergedWorld();
-  job->options = *options;
-  job->result_frame = frame;
-  AttachCallbacks(*job);
-  return job;
-}
-
-Result<RegistrationOptions> Session::RequestOptions(const pb::RegisterRequest& m) const {
-  RegistrationOptions o = ctx_.config.registration;
-  if (!m.method().empty()) {
-    auto method = ParseMethod(m.method());
-    if (!method.ok()) return method.status().WithContext("RegisterRequest.method");
-    o.method = *method;
-  }
-  if (m.has_head_path()) {
-    auto path = wire::HeadPathFromProto(m.head_path(), kMaxHeadPathPositions);
-    if (!path.ok()) return path.status().WithContext("RegisterRequest");
-    o.head_path_world = std::move(*path);
-  }
-  const pb::RegistrationParams& p = m.params();
-  if (p.has_crop_radius_m()) {
-    ARREF_RETURN_IF_ERROR(CheckRange("crop_radius_m", p.crop_radius_m(), 0.01, 50.0));
-    o.crop_radius_m = p.crop_radius_m();
-  }
-  if (p.has_scene_samples()) {
-    ARREF_RETURN_IF_ERROR(CheckRange<std::uint32_t>("scene_samples", p.scene_samples(), 3, 2'000'000));
-    o.scene_samples = p.scene_samples();
-  }
-  if (p.has_icp_max_correspondence_m()) {
-    ARREF_RETURN_IF_ERROR(CheckRange("icp_max_correspondence_m", p.icp_max_correspondence_m(), 1e-4, 10.0));
-    o.icp.max_correspondence_m = p.icp_max_correspondence_m();
-  }
-  if (p.has_icp_max_iterations()) {
-    ARREF_RETURN_IF_ERROR(CheckRange<std::uint32_t>("icp_max_iterations", p.icp_max_iterations(), 1, 100'000));
-    o.icp.max_iterations = static_cast<int>(p.icp_max_iterations());
-  }
-  return o;
+  (*job)->session_id = id_;
+  (*job)->scene_world = spatial_.MergedWorld();
+  AttachCallbacks(**job);
+  return std::move(*job);
 }
 
 void Session::AttachCallbacks(Job& job) {
@@ -556,10 +346,16 @@ void Session::AttachCallbacks(Job& job) {
     message.mutable_progress()->set_request_id(rid);
     message.mutable_progress()->set_stage(std::string(stage));
     message.mutable_progress()->set_fraction(fraction);
-    self->SendFrame(Frame(message));
+    self->SendFrame(wire::SharedFrame(message));
   };
   job.on_done = [weak, hub](const Job& done, const JobOutcome& outcome) {
-    const auto frame = Frame(ResultMessage(done, outcome));
+    const wire::ResultHeader header{.request_id = done.request_id,
+                                    .robot_id = done.robot_id,
+                                    .session_id = done.session_id,
+                                    .queue_ms = outcome.queue_ms,
+                                    .server_ms = MsSince(done.accepted_at)};
+    const auto frame =
+        wire::SharedFrame(wire::ResultMessage(header, outcome.report, outcome.status, done.result_frame));
     spdlog::info("session {}: request {} {} ({:.0f} ms queued, {:.0f} ms running){}", done.session_id, done.request_id,
                  outcome.report ? "done" : outcome.status.ToString(), outcome.queue_ms, outcome.run_ms,
                  weak.expired() ? "; session gone, result dropped" : "");
@@ -598,7 +394,7 @@ void Session::CloseGracefully(const std::string& reason) {
   net::post(socket_.get_executor(), [self = shared_from_this(), reason] { self->StartClosing(reason); });
 }
 
-void Session::Send(const pb::ServerMessage& message) { Enqueue(Frame(message)); }
+void Session::Send(const pb::ServerMessage& message) { Enqueue(wire::SharedFrame(message)); }
 
 void Session::SendError(pb::ErrorCode code, const std::string& message, std::uint64_t request_id,
                         std::uint64_t surface_id) {
@@ -624,7 +420,6 @@ void Session::Enqueue(std::shared_ptr<const std::string> frame) {
   }
   write_queue_bytes_ += frame->size();
   write_queue_.push_back(std::move(frame));
-  write_queue_empty_ = false;
   if (!writing_) WriteNext();
 }
 
@@ -632,7 +427,6 @@ void Session::WriteNext() {
   if (state_ == State::kClosed) return;
   if (write_queue_.empty()) {
     writing_ = false;
-    write_queue_empty_ = true;
     if (state_ == State::kClosing) CloseNow(close_reason_);
     return;
   }
@@ -705,7 +499,6 @@ void Session::CloseNow(const std::string& reason) {
   socket_.close(ignored);
   write_queue_.clear();
   write_queue_bytes_ = 0;
-  write_queue_empty_ = true;
   const auto dropped = ctx_.jobs.CancelSession(id_);  // running ones stop at their next stage
   if (!dropped.empty()) spdlog::info("session {}: {} queued requests dropped with it", id_, dropped.size());
   ctx_.hub.RemoveSession(id_);

@@ -10,42 +10,29 @@
 
 #include <boost/asio.hpp>
 
+#include <atomic>
 #include <cstdint>
 #include <deque>
+#include <functional>
 #include <map>
 #include <memory>
-#include <mutex>
 #include <optional>
 #include <set>
 #include <string>
 #include <vector>
 
 #include "arref/scene/spatial_mesh.h"
+#include "frame_decoder.h"
 #include "job_scheduler.h"
 #include "robot_registry.h"
 #include "server_config.h"
+#include "subscriber_hub.h"
 #include "wire.h"
 
 namespace arref::server {
 
 namespace net = boost::asio;
 using tcp = net::ip::tcp;
-
-class Session;
-
-// Which sessions want the results of which robot.
-class SubscriberHub {
- public:
-  void Set(const std::string& robot_id, const std::shared_ptr<Session>& session, bool subscribe);
-  void RemoveSession(std::uint64_t session_id);
-  // Sends the frame to every subscriber of the robot except one session (it got it already).
-  void Publish(const std::string& robot_id, const std::shared_ptr<const std::string>& frame,
-               std::uint64_t except_session);
-
- private:
-  std::mutex mu_;
-  std::map<std::string, std::map<std::uint64_t, std::weak_ptr<Session>>> subscribers_;
-};
 
 // What every session shares: set up once by the server.
 struct ServerContext {
@@ -73,8 +60,6 @@ class Session : public std::enable_shared_from_this<Session> {
   void DeliverResult(std::uint64_t request_id, std::shared_ptr<const std::string> frame);
   void NotifyShutdown(double grace_s);
   void CloseGracefully(const std::string& reason);
-  // True once nothing is left to write (read on the strand via posts; approximate elsewhere).
-  bool idle_for_shutdown() const { return write_queue_empty_; }
 
  private:
   enum class State { kAwaitHello, kReady, kClosing, kClosed };
@@ -82,7 +67,7 @@ class Session : public std::enable_shared_from_this<Session> {
   // Reading and framing.
   void ReadMore();
   void OnRead(const boost::system::error_code& ec, std::size_t bytes);
-  bool ProcessBuffer();  // false when the session started closing
+  bool ProcessFrames();  // false when the session started closing
   void ArmIdleTimer();
 
   // Message handlers.
@@ -97,9 +82,9 @@ class Session : public std::enable_shared_from_this<Session> {
   void OnSubscribe(const wire::pb::Subscribe& m);
   void OnPing(const wire::pb::Ping& m);
 
-  // Building a job from a request; an error is sent and nullptr returned on bad input.
+  // A job for the request (request_builder.h) with this session's scene and callbacks; an
+  // error is sent and nullptr returned on bad input.
   std::shared_ptr<Job> MakeJob(const wire::pb::RegisterRequest& m);
-  Result<RegistrationOptions> RequestOptions(const wire::pb::RegisterRequest& m) const;
   void AttachCallbacks(Job& job);
 
   // Writing.
@@ -123,8 +108,7 @@ class Session : public std::enable_shared_from_this<Session> {
   std::string client_name_;
   std::string close_reason_;
 
-  std::vector<std::uint8_t> rx_;
-  std::size_t rx_size_ = 0;
+  wire::FrameDecoder rx_;
   net::steady_timer idle_timer_;
   net::steady_timer write_timer_;
   net::steady_timer linger_timer_;
@@ -132,7 +116,6 @@ class Session : public std::enable_shared_from_this<Session> {
   std::deque<std::shared_ptr<const std::string>> write_queue_;
   std::size_t write_queue_bytes_ = 0;
   bool writing_ = false;
-  std::atomic<bool> write_queue_empty_{true};
 
   SpatialMesh spatial_;
   std::optional<Iso3> seed_;

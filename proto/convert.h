@@ -1,0 +1,47 @@
+// Conversions between the server's answers and core types: a registration report or the
+// status that explains why there is none becomes a Result message; joint states come in as
+// core JointValues. Pure functions (no I/O), shared by the server and its tests.
+#pragma once
+
+#include <cstdint>
+#include <memory>
+#include <optional>
+#include <string>
+
+#include "arref/base/frames.h"
+#include "arref/base/status.h"
+#include "arref/pipeline/pipeline.h"
+#include "arref/robot/robot_model.h"
+#include "wire.h"
+
+namespace arref::wire {
+
+// The wire error code of a failed core call (anything not listed is a registration failure).
+pb::ErrorCode ErrorCodeFor(const Status& status);
+
+pb::ResultStatus ToProto(ResultStatus status);
+
+// Every report field, with the pose in `frame` (and the internal matrix alongside).
+void FillReport(const RegistrationReport& report, FrameConvention frame, pb::Result* r);
+
+// Who asked and how long it took: the part of a Result that is not the report.
+struct ResultHeader {
+  std::uint64_t request_id = 0;
+  std::string robot_id;
+  std::uint64_t session_id = 0;
+  double queue_ms = 0.0;
+  double server_ms = 0.0;
+};
+
+// The Result message of a job: the report when there is one, else a CANCELLED (status code
+// kCancelled) or FAILED result carrying the status' message.
+pb::ServerMessage ResultMessage(const ResultHeader& header, const std::optional<RegistrationReport>& report,
+                                const Status& status, FrameConvention frame);
+
+// Names and positions of a JointState; fails on a length mismatch or a non-finite position.
+Result<JointValues> JointsFromProto(const pb::JointState& m);
+
+// A message as a shareable frame (several sessions may send the same result).
+std::shared_ptr<const std::string> SharedFrame(const google::protobuf::MessageLite& message);
+
+}  // namespace arref::wire

@@ -1,0 +1,113 @@
+#include "request_builder.h"
+
+#include <fmt/format.h>
+
+#include "convert.h"
+
+namespace arref::server {
+namespace {
+
+namespace pb = wire::pb;
+
+// Range check of an optional override; the message names the field and its range.
+template <typename T>
+Status CheckRange(const char* field, T value, T lo, T hi) {
+  if (!(value >= lo && value <= hi))
+    return Status::InvalidArgument(fmt::format("params.{} = {} is outside [{}, {}]", field, value, lo, hi));
+  return Status::Ok();
+}
+
+Result<Iso3> RequestSeedPose(const pb::SeedPose& seed, FrameConvention* frame) {
+  ARREF_ASSIGN_OR_RETURN(*frame, wire::FromProto(seed.frame()));
+  return wire::PoseFromProto(seed.t_world_seed(), *frame);
+}
+
+}  // namespace
+
+Result<RegistrationOptions> RequestOptions(const pb::RegisterRequest& m, const RegistrationOptions& configured) {
+  RegistrationOptions o = configured;
+  if (!m.method().empty()) {
+    auto method = ParseMethod(m.method());
+    if (!method.ok()) return method.status().WithContext("RegisterRequest.method");
+    o.method = *method;
+  }
+  if (m.has_head_path()) {
+    auto path = wire::HeadPathFromProto(m.head_path(), kMaxHeadPathPositions);
+    if (!path.ok()) return path.status().WithContext("RegisterRequest");
+    o.head_path_world = std::move(*path);
+  }
+  const pb::RegistrationParams& p = m.params();
+  if (p.has_crop_radius_m()) {
+    ARREF_RETURN_IF_ERROR(CheckRange("crop_radius_m", p.crop_radius_m(), 0.01, 50.0));
+    o.crop_radius_m = p.crop_radius_m();
+  }
+  if (p.has_scene_samples()) {
+    ARREF_RETURN_IF_ERROR(CheckRange<std::uint32_t>("scene_samples", p.scene_samples(), 3, 2'000'000));
+    o.scene_samples = p.scene_samples();
+  }
+  if (p.has_icp_max_correspondence_m()) {
+    ARREF_RETURN_IF_ERROR(CheckRange("icp_max_correspondence_m", p.icp_max_correspondence_m(), 1e-4, 10.0));
+    o.icp.max_correspondence_m = p.icp_max_correspondence_m();
+  }
+  if (p.has_icp_max_iterations()) {
+    ARREF_RETURN_IF_ERROR(CheckRange<std::uint32_t>("icp_max_iterations", p.icp_max_iterations(), 1, 100'000));
+    o.icp.max_iterations = static_cast<int>(p.icp_max_iterations());
+  }
+  return o;
+}
+
+Result<JointValues> RequestJoints(const pb::RegisterRequest& m, const ServedRobot& robot, const RobotRegistry& robots,
+                                  const SessionDefaults& session) {
+  JointValues given;
+  if (m.has_joints()) {
+    auto j = wire::JointsFromProto(m.joints());
+    if (!j.ok()) return j.status().WithContext("RegisterRequest.joints");
+    given = std::move(*j);
+  } else if (session.joints) {
+    if (auto it = session.joints->find(m.robot_id()); it != session.joints->end())
+      given = it->second;
+    else if (auto any = session.joints->find(""); any != session.joints->end())
+      given = any->second;
+  }
+  auto joints = robots.ResolveJoints(robot, given);
+  if (!joints.ok()) return joints.status().WithContext("joints");
+  return joints;
+}
+
+Result<std::shared_ptr<Job>> BuildJob(const pb::RegisterRequest& m, const RobotRegistry& robots,
+                                      const RegistrationOptions& configured, const SessionDefaults& session) {
+  const ServedRobot* robot = robots.Find(m.robot_id());
+  if (!robot)
+    return Status::NotFound(fmt::format("robot '{}' is not served here (served: {})", m.robot_id(), robots.Ids()));
+  auto job = std::make_shared<Job>();
+  FrameConvention frame = session.seed_frame;
+  if (m.has_seed()) {
+    auto T = RequestSeedPose(m.seed(), &frame);
+    if (!T.ok()) return T.status().WithContext("RegisterRequest.seed");
+    job->T_world_seed = *T;
+  } else if (session.seed) {
+    job->T_world_seed = *session.seed;
+  } else {
+    return Status::FailedPrecondition("no seed: send SeedPose (or RegisterRequest.seed) before registering");
+  }
+  ARREF_ASSIGN_OR_RETURN(job->joints, RequestJoints(m, *robot, robots, session));
+  ARREF_ASSIGN_OR_RETURN(job->options, RequestOptions(m, configured));
+  // An unrecognised result frame is not an error: the result comes in the seed's frame.
+  if (m.result_frame() != pb::FRAME_CONVENTION_UNSPECIFIED) {
+    if (auto result_frame = wire::FromProto(m.result_frame()); result_frame.ok()) frame = *result_frame;
+  }
+  job->request_id = m.request_id();
+  job->robot_id = m.robot_id();
+  job->result_frame = frame;
+  return job;
+}
+
+pb::ErrorCode RequestErrorCode(const Status& status) {
+  switch (status.code()) {
+    case StatusCode::kNotFound: return pb::ERROR_CODE_UNKNOWN_ROBOT;
+    case StatusCode::kFailedPrecondition: return pb::ERROR_CODE_NO_SEED;
+    default: return pb::ERROR_CODE_INVALID_ARGUMENT;
+  }
+}
+
+}  // namespace arref::server

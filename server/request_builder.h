@@ -1,0 +1,53 @@
+// From a RegisterRequest to a Job: validation of every field and the fallbacks to what the
+// session already holds (seed, joint states). Pure functions of their inputs, so each field's
+// error can be tested without a socket; the session only adds its scene and callbacks.
+#pragma once
+
+#include <cstddef>
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <optional>
+#include <string>
+
+#include "arref/base/frames.h"
+#include "arref/base/geometry.h"
+#include "arref/base/status.h"
+#include "arref/pipeline/pipeline.h"
+#include "job_scheduler.h"
+#include "robot_registry.h"
+#include "wire.h"
+
+namespace arref::server {
+
+// RegisterRequest.head_path holds at most this many positions (arref.proto).
+constexpr std::size_t kMaxHeadPathPositions = 10000;
+
+// What a session knows when a request arrives, used where the request leaves a field unset.
+struct SessionDefaults {
+  std::optional<Iso3> seed;                                  // last SeedPose
+  FrameConvention seed_frame = FrameConvention::kUnity;      // its frame: results default to it
+  const std::map<std::string, JointValues>* joints = nullptr;  // JointState by robot id ("": any)
+};
+
+// The configured options overridden by the request's method, head path and params, each
+// range-checked; an error names the field ("RegisterRequest.method: ...", "params.x = ...").
+Result<RegistrationOptions> RequestOptions(const wire::pb::RegisterRequest& m, const RegistrationOptions& configured);
+
+// The complete joint state of the request: its own joints, else the session's state for the
+// robot, else the session's state for any robot, over the robot's defaults.
+Result<JointValues> RequestJoints(const wire::pb::RegisterRequest& m, const ServedRobot& robot,
+                                  const RobotRegistry& robots, const SessionDefaults& session);
+
+// A job for the request with everything but the scene, the session id and the callbacks,
+// which the session adds. Errors and the wire code they become (RequestErrorCode):
+//   kNotFound           unknown robot        -> UNKNOWN_ROBOT
+//   kFailedPrecondition no seed at all       -> NO_SEED
+//   kInvalidArgument    any bad field        -> INVALID_ARGUMENT
+// Checked in that order (seed before joints before options), as the protocol documents.
+Result<std::shared_ptr<Job>> BuildJob(const wire::pb::RegisterRequest& m, const RobotRegistry& robots,
+                                      const RegistrationOptions& configured, const SessionDefaults& session);
+
+wire::pb::ErrorCode RequestErrorCode(const Status& status);
+
+}  // namespace arref::server

@@ -38,12 +38,10 @@ struct Candidate {
   int iterations = 0;
 };
 
-double Yaw(const Iso3& T) { return std::atan2(T.linear()(1, 0), T.linear()(0, 0)); }
-
 std::vector<Iso3> Hypotheses(const Iso3& seed, const ArrefIcpParams& p, int position_steps) {
   std::vector<Iso3> out;
   const Vec3 c = seed.translation();
-  const double yaw0 = Yaw(seed);
+  const double yaw0 = YawOf(seed);
   for (int ix = -position_steps; ix <= position_steps; ++ix)
     for (int iy = -position_steps; iy <= position_steps; ++iy) {
       if (position_steps > 0 && ix == 0 && iy == 0) continue;  // the centre was searched already
@@ -79,7 +77,7 @@ std::vector<Candidate> CoarseSearch(const PointCloud& coarse, const TargetCloud&
 }
 
 bool SamePose(const Iso3& a, const Iso3& b) {
-  const double dyaw = std::abs(std::remainder(Yaw(a) - Yaw(b), 2 * std::numbers::pi));
+  const double dyaw = std::abs(std::remainder(YawOf(a) - YawOf(b), 2 * std::numbers::pi));
   return (a.translation() - b.translation()).norm() < 0.05 && dyaw < 10 * std::numbers::pi / 180;
 }
 

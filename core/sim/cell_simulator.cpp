@@ -299,8 +299,7 @@ std::vector<Iso3> DrawSeeds(const Iso3& T_world_base, const SeedNoise& noise, in
   std::normal_distribution<double> horizontal(0.0, noise.horizontal_sigma_m), yaw_error(0.0, noise.yaw_sigma_deg * kDeg);
   std::uniform_real_distribution<double> vertical(0.0, noise.vertical_max_m);
   const Vec3 base = T_world_base.translation();
-  const Eigen::Matrix3d R = T_world_base.linear();
-  const double yaw = std::atan2(R(1, 0), R(0, 0));
+  const double yaw = YawOf(T_world_base);
   std::vector<Iso3> seeds;
   std::uniform_real_distribution<double> unit(0.0, 1.0);
   for (int i = 0; i < count; ++i) {

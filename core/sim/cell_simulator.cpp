@@ -3,10 +3,8 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
-#include <array>
 #include <chrono>
 #include <cmath>
-#include <map>
 #include <numbers>
 #include <sstream>
 #include <string>
@@ -178,46 +176,6 @@ Iso3 RandomWorldFrame(std::mt19937_64& rng) {
   std::uniform_real_distribution<double> yaw(0.0, 2 * std::numbers::pi), horizontal(-3.0, 3.0), vertical(-1.5, 0.0);
   const double x = horizontal(rng), y = horizontal(rng), z = vertical(rng);
   return MakeYawPose(x, y, z, yaw(rng));
-}
-
-// Chunks the mesh on a world grid like the spatial mapper's surfaces; each chunk keeps its
-// vertices relative to its own corner.
-std::vector<Surface> SplitIntoSurfaces(const TriangleMesh& world, double chunk_m, double timestamp_s) {
-  using ChunkKey = std::array<int, 3>;
-  std::map<ChunkKey, std::vector<std::uint32_t>> chunks;
-  for (std::uint32_t t = 0; t < world.triangles.size(); ++t) {
-    const Triangle& tri = world.triangles[t];
-    const Vec3f c = (world.vertices[tri[0]] + world.vertices[tri[1]] + world.vertices[tri[2]]) / 3.0f;
-    ChunkKey key;
-    for (int a = 0; a < 3; ++a) key[a] = static_cast<int>(std::floor(c[a] / chunk_m));
-    chunks[key].push_back(t);
-  }
-  std::vector<Surface> surfaces;
-  std::vector<std::uint32_t> local(world.vertices.size());
-  std::vector<std::uint64_t> stamp(world.vertices.size(), 0);
-  for (const auto& [key, tris] : chunks) {
-    Surface s;
-    s.id = surfaces.size() + 1;
-    s.timestamp_s = timestamp_s;
-    const Vec3 corner = Vec3(key[0], key[1], key[2]) * chunk_m;
-    s.T_world_surface = Iso3(Eigen::Translation3d(corner));
-    const Vec3f corner_f = corner.cast<float>();
-    for (std::uint32_t t : tris) {
-      Triangle out;
-      for (int k = 0; k < 3; ++k) {
-        const std::uint32_t v = world.triangles[t][k];
-        if (stamp[v] != s.id) {
-          stamp[v] = s.id;
-          local[v] = static_cast<std::uint32_t>(s.mesh.vertices.size());
-          s.mesh.vertices.push_back(world.vertices[v] - corner_f);
-        }
-        out[k] = local[v];
-      }
-      s.mesh.triangles.push_back(out);
-    }
-    surfaces.push_back(std::move(s));
-  }
-  return surfaces;
 }
 
 // Ray casts every view from its true pose and fuses it at its believed pose, in the world

@@ -5,6 +5,7 @@
 #include <functional>
 #include <map>
 #include <string>
+#include <vector>
 
 #include "arref/base/geometry.h"
 #include "arref/base/status.h"
@@ -53,5 +54,10 @@ TriangleMesh TrianglesNear(const TriangleMesh& mesh, const PointIndex& points, d
 
 // Drops triangles with (near) zero area; the spatial mapper emits some.
 TriangleMesh RemoveDegenerateTriangles(const TriangleMesh& mesh, double min_area = 1e-12);
+
+// Splits a world mesh into surfaces like the spatial mapper's: one per chunk_m cube of a world
+// grid (the cube of a triangle's centroid), ids 1, 2, ... in grid order, each surface's vertices
+// relative to its cube's corner and stamped timestamp_s.
+std::vector<Surface> SplitIntoSurfaces(const TriangleMesh& world, double chunk_m, double timestamp_s);
 
 }  // namespace arref

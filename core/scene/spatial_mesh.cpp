@@ -112,10 +112,6 @@ TriangleMesh TrianglesNear(const TriangleMesh& mesh, const PointIndex& points, d
   });
 }
 
-TriangleMesh RemoveDegenerateTriangles(const TriangleMesh& mesh, double min_area) {
-  return KeepTriangles(mesh, [&](const Triangle& t) { return TriangleArea(mesh, t) > min_area; });
-}
-
 std::vector<Surface> SplitIntoSurfaces(const TriangleMesh& world, double chunk_m, double timestamp_s) {
   using ChunkKey = std::array<int, 3>;
   std::map<ChunkKey, std::vector<std::uint32_t>> chunks;

@@ -52,9 +52,6 @@ TriangleMesh KeepTriangles(const TriangleMesh& mesh, const std::function<bool(co
 // vertices, unused ones included): the part of a mesh round a fitted model.
 TriangleMesh TrianglesNear(const TriangleMesh& mesh, const PointIndex& points, double distance_m);
 
-// Drops triangles with (near) zero area; the spatial mapper emits some.
-TriangleMesh RemoveDegenerateTriangles(const TriangleMesh& mesh, double min_area = 1e-12);
-
 // Splits a world mesh into surfaces like the spatial mapper's: one per chunk_m cube of a world
 // grid (the cube of a triangle's centroid), ids 1, 2, ... in grid order, each surface's vertices
 // relative to its cube's corner and stamped timestamp_s.

@@ -30,7 +30,6 @@ class SpatialMesh {
  public:
   Status Upsert(Surface surface);  // validated first; a bad surface leaves the map unchanged
   bool Remove(std::uint64_t id);
-  void Clear() { surfaces_.clear(); }
   std::size_t size() const { return surfaces_.size(); }
   std::size_t vertex_count() const;
   const std::map<std::uint64_t, Surface>& surfaces() const { return surfaces_; }

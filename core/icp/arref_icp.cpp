@@ -27,7 +27,7 @@
 #include "arref/scene/sampling.h"
 #include "arref/scene/spatial_mesh.h"
 #include "arref/fusion/tracking_error.h"
-#include "arref/icp/step_timer.h"
+#include "arref/base/clock.h"
 
 namespace arref {
 namespace {
@@ -306,15 +306,15 @@ Result<RegistrationOutput> RegisterArrefIcp(const ArrefIcpInput& in) {
   const TargetCloud& target = in.scene_target;
 
   RegistrationOutput out;
-  StepTimer timer(&out);
+  LapTimer laps;  // each step's time goes to out.step_ms
   const std::vector<Candidate> candidates = SearchPoses(coarse, target, in.T_world_seed, p, &out);
-  timer.Step("pose-search");
+  out.step_ms.emplace_back("pose-search", laps.Lap());
   std::vector<Candidate> refined;
   for (const auto& c : Distinct(candidates, static_cast<std::size_t>(p.refine_top)))
     refined.push_back(Refine(fine, target, Approach(approach, target, c, p), p, kPolishLevels));
   refined = Distinct(refined, 2);
   out.stages.push_back("arref-icp");
-  timer.Step("refine");
+  out.step_ms.emplace_back("refine", laps.Lap());
   if (in.model_expected) {
     std::shared_ptr<const PointCloud> fitted = model[2];  // the surface polished last, shared not copied
     int walk = -1;
@@ -322,14 +322,14 @@ Result<RegistrationOutput> RegisterArrefIcp(const ArrefIcpInput& in) {
       auto walked = RefineForWalk(in, fine, target, refined.front(), &fitted, &walk, &out.stages);
       if (!walked.ok()) return walked.status();
       refined.front() = *walked;
-      timer.Step("walk-choice");
+      out.step_ms.emplace_back("walk-choice", laps.Lap());
     }
     if (in.robot && in.scene_mesh_world && p.in_context) {
       refined.front() = RefineInContext(in, walk, target, refined.front(), &fitted, &out.stages);
-      timer.Step("context");
+      out.step_ms.emplace_back("context", laps.Lap());
     }
     refined.front() = ExactIfCloser(in, *fitted, target, refined.front(), &out.stages);
-    timer.Step("surface-choice");
+    out.step_ms.emplace_back("surface-choice", laps.Lap());
   }
   out.T_world_base = refined.front().T_world_base;
   out.score = refined.front().score;

@@ -19,6 +19,7 @@
 #include <thread>
 
 #include "arref/base/builtin.h"
+#include "arref/base/clock.h"
 #include "arref/pipeline/pipeline.h"
 #include "arref/sim/cell_simulator.h"
 #include "client_io.h"
@@ -375,7 +376,7 @@ class Runner {
     RegistrationOutcome outcome;
     outcome.request_id = result.request_id();
     outcome.result = result;
-    outcome.latency_ms = std::chrono::duration<double, std::milli>(Clock::now() - sent).count();
+    outcome.latency_ms = MsSince(sent);
     const bool has_pose = result.status() == pb::RESULT_STATUS_OK || result.status() == pb::RESULT_STATUS_LOW_CONFIDENCE;
     if (has_pose) {
       auto T = wire::PoseFromProto(result.t_world_base(), FrameConvention::kUnity);

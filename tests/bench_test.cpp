@@ -49,8 +49,8 @@ const std::map<std::string, std::string>* Find(const Table& t, const std::string
 double Percent(const std::string& s) { return std::stod(s.substr(0, s.find(' '))); }
 
 TEST(Bench, QuickRunWritesSaneTables) {
-  const std::string out = ::testing::TempDir() + "/arref_bench_quick";
-  std::filesystem::remove_all(out);
+  const testing::ScopedTempDir tmp;
+  const std::string out = tmp.path() + "/bench";
   const auto r = testing::RunCommand(std::string(ARREF_BINARY_DIR) + "/clients/cli/arref bench --quick --jobs 2 --out " + out);
   ASSERT_EQ(r.exit_code, 0) << r.err;
   for (const char* f : {"results.md", "runs.csv", "table1.csv", "table2.csv", "table3.csv", "scenes.csv", "rotation.dat",

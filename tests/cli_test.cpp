@@ -17,19 +17,16 @@ std::string Arref() { return std::string(ARREF_BINARY_DIR) + "/clients/cli/arref
 
 class CliTest : public ::testing::Test {
  protected:
-  static void SetUpTestSuite() {
-    dir_ = ::testing::TempDir() + "/arref_cli";
-    std::filesystem::create_directories(dir_);
-  }
   // Simulates a small-preset cell with the built-in robot; returns the truth path.
-  static std::string Simulate(int rng_seed, const std::string& extra = "") {
+  std::string Simulate(int rng_seed, const std::string& extra = "") {
     const std::string base = dir_ + "/cell" + std::to_string(rng_seed);
     const auto r = RunCommand(Arref() + " simulate --rng-seed " + std::to_string(rng_seed) + " --mesh-out " + base +
                               ".ply --truth-out " + base + ".json " + extra);
     EXPECT_EQ(r.exit_code, 0) << r.err;
     return base;
   }
-  static inline std::string dir_;
+  const testing::ScopedTempDir tmp_;  // each test's cells of its own (two tests use the same seeds)
+  const std::string dir_ = tmp_.path();
 };
 
 TEST_F(CliTest, SimulateWritesMeshAndTruth) {

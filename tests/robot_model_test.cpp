@@ -82,7 +82,8 @@ std::string WriteTestUrdf(const std::string& dir) {
 }
 
 TEST(RobotModel, PrismaticContinuousMimicAndScale) {
-  const std::string dir = ::testing::TempDir() + "/arref_urdf";
+  const testing::ScopedTempDir tmp;
+  const std::string dir = tmp.path();
   const RobotModel robot = LoadOrDie(WriteTestUrdf(dir));
   const auto actuated = robot.ActuatedJoints();
   ASSERT_EQ(actuated.size(), 2u) << "the mimic joint is not actuated";

@@ -540,8 +540,8 @@ TEST(ServerIntegration, VersionMismatchNamesBothVersions) {
 // The mock headset reads `arref simulate`'s cell files and typed seeds with the command line's
 // reader: each malformed part is named, and it stops before it connects (no server runs here).
 TEST(MockHeadset, BadCellFilesGetClearErrors) {
-  const std::string dir = ::testing::TempDir() + "/arref_mock_cells";
-  std::filesystem::create_directories(dir);
+  const arref::testing::ScopedTempDir tmp;
+  const std::string dir = tmp.path();
   std::ofstream(dir + "/tri.obj") << "v 0 0 0\nv 1 0 0\nv 0 1 0\nf 1 2 3\n";
   const std::string T = R"("T_world_base": [1,0,0,0, 0,1,0,0, 0,0,1,0, 0,0,0,1])";
   struct Case {

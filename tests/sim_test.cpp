@@ -112,8 +112,6 @@ bool SameSurfaces(const SimulatedCell& a, const SimulatedCell& b) {
   return true;
 }
 
-double YawOf(const Iso3& T) { return std::atan2(T.linear()(1, 0), T.linear()(0, 0)); }
-
 double WrapAngle(double a) { return std::remainder(a, 2 * std::numbers::pi); }
 
 TEST(CellSimulator, SameSeedGivesSameCellAndDifferentSeedDoesNot) {

@@ -26,13 +26,42 @@ inline bool HaveShared() { return std::filesystem::exists(Kr5PackageDir() + "/ur
   } while (0)
 
 #include <array>
+#include <cctype>
 #include <cstdio>
+#include <cstdlib>
 #include <fstream>
 #include <sstream>
 #include <sys/wait.h>
 #include <unistd.h>
 
 namespace arref::testing {
+
+// A directory of the running test's own, removed with what is in it when this goes: CTest runs
+// test cases in parallel processes (and other checkouts run theirs in the same temp dir), so a
+// fixed path would be written by two at once.
+class ScopedTempDir {
+ public:
+  ScopedTempDir() {
+    const ::testing::TestInfo* test = ::testing::UnitTest::GetInstance()->current_test_info();
+    std::string name = test ? std::string(test->test_suite_name()) + "." + test->name() : "test";
+    for (char& c : name)
+      if (!std::isalnum(static_cast<unsigned char>(c)) && c != '.') c = '_';  // parameterised names have '/'
+    std::string pattern = ::testing::TempDir() + "/arref_" + name + "_XXXXXX";
+    if (mkdtemp(pattern.data()) == nullptr) ADD_FAILURE() << "cannot create a directory like " << pattern;
+    path_ = pattern;
+  }
+  ~ScopedTempDir() {
+    std::error_code ignored;  // a test that failed half-way may have left anything
+    std::filesystem::remove_all(path_, ignored);
+  }
+  ScopedTempDir(const ScopedTempDir&) = delete;
+  ScopedTempDir& operator=(const ScopedTempDir&) = delete;
+
+  const std::string& path() const { return path_; }
+
+ private:
+  std::string path_;
+};
 
 struct CommandResult {
   int exit_code = -1;

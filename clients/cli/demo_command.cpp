@@ -22,7 +22,7 @@ struct DemoArgs {
 
 void PrintPose(const char* label, const Iso3& T) {
   const Vec3 p = T.translation();
-  const double yaw = std::atan2(T.rotation()(1, 0), T.rotation()(0, 0)) * 180 / M_PI;
+  const double yaw = YawOf(T) * 180 / M_PI;
   std::printf("%-14s x %+.4f  y %+.4f  z %+.4f m   yaw %+8.3f deg\n", label, p.x(), p.y(), p.z(), yaw);
 }
 

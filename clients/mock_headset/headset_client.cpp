@@ -15,11 +15,11 @@
 #include <chrono>
 #include <cmath>
 #include <cstring>
-#include <map>
 #include <nlohmann/json.hpp>
 #include <thread>
 
 #include "arref/base/builtin.h"
+#include "arref/base/clock.h"
 #include "arref/pipeline/pipeline.h"
 #include "arref/sim/cell_simulator.h"
 #include "client_io.h"
@@ -154,38 +154,6 @@ Result<HeadsetScene> SimulatedScene(std::uint64_t rng_seed) {
 
 namespace {
 
-// Splits a world mesh into chunk_m cubes, each a surface with its own frame (like HoloLens).
-std::vector<Surface> SplitIntoSurfaces(const TriangleMesh& world, double chunk_m) {
-  struct Chunk {
-    Surface surface;
-    std::map<std::uint32_t, std::uint32_t> remap;
-  };
-  std::map<std::array<int, 3>, Chunk> chunks;
-  for (const auto& t : world.triangles) {
-    const Vec3f c = (world.vertices[t[0]] + world.vertices[t[1]] + world.vertices[t[2]]) / 3.0f;
-    const std::array<int, 3> key{static_cast<int>(std::floor(c.x() / chunk_m)),
-                                 static_cast<int>(std::floor(c.y() / chunk_m)),
-                                 static_cast<int>(std::floor(c.z() / chunk_m))};
-    Chunk& chunk = chunks[key];
-    const Vec3f origin = Vec3f(key[0], key[1], key[2]) * static_cast<float>(chunk_m);
-    Triangle local;
-    for (int k = 0; k < 3; ++k) {
-      auto [it, added] = chunk.remap.emplace(t[k], static_cast<std::uint32_t>(chunk.surface.mesh.vertices.size()));
-      if (added) chunk.surface.mesh.vertices.push_back(world.vertices[t[k]] - origin);
-      local[k] = it->second;
-    }
-    chunk.surface.mesh.triangles.push_back(local);
-    chunk.surface.T_world_surface = Iso3(Eigen::Translation3d(origin.cast<double>()));
-  }
-  std::vector<Surface> out;
-  std::uint64_t id = 1;
-  for (auto& [key, chunk] : chunks) {
-    chunk.surface.id = id++;
-    out.push_back(std::move(chunk.surface));
-  }
-  return out;
-}
-
 // The cell file `arref simulate` writes: the truth, the seeds and where the wearer walked.
 Status ReadTruth(const std::string& path, HeadsetScene* scene) {
   auto j = ReadJsonFile(path);
@@ -223,7 +191,7 @@ Result<HeadsetScene> SceneFromFiles(const std::string& mesh_path, FrameConventio
   if (!mesh.ok()) return mesh.status().WithContext("--scene");
   MeshToRos(*mesh, mesh_frame);
   HeadsetScene scene;
-  scene.surfaces = SplitIntoSurfaces(*mesh, 1.0);
+  scene.surfaces = SplitIntoSurfaces(*mesh, 1.0, 0.0);  // a mesh file carries no time
   if (!truth_json.empty()) ARREF_RETURN_IF_ERROR(ReadTruth(truth_json, &scene));
   if (seed) scene.seeds.insert(scene.seeds.begin(), *seed);
   if (scene.seeds.empty()) return Status::InvalidArgument("no seed: pass --seed or a --truth file with seeds");
@@ -408,7 +376,7 @@ class Runner {
     RegistrationOutcome outcome;
     outcome.request_id = result.request_id();
     outcome.result = result;
-    outcome.latency_ms = std::chrono::duration<double, std::milli>(Clock::now() - sent).count();
+    outcome.latency_ms = MsSince(sent);
     const bool has_pose = result.status() == pb::RESULT_STATUS_OK || result.status() == pb::RESULT_STATUS_LOW_CONFIDENCE;
     if (has_pose) {
       auto T = wire::PoseFromProto(result.t_world_base(), FrameConvention::kUnity);

@@ -2,9 +2,9 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
-#include <chrono>
 #include <cmath>
 
+#include "arref/base/clock.h"
 #include "arref/fusion/model_reconstruction.h"
 #include "arref/fusion/model_visibility.h"
 #include "arref/fusion/robot_side.h"
@@ -102,7 +102,7 @@ Result<std::shared_ptr<const PointCloud>> RobotSide::ExpectedLocked(const Expect
 // The walk choice lays every walk's surface on the scene, so all of them are made together:
 // they share most eyes. A walk's failure is kept, so that asking again does not remake them all.
 void RobotSide::MakeEveryWalk(long voxel_mm) const {
-  const auto t0 = std::chrono::steady_clock::now();
+  const auto t0 = SteadyClock::now();
   auto maker = Maker();
   std::vector<ReconstructionOptions> options;
   for (int walk = -1; walk < kWalks; ++walk) options.push_back(WalkOptions(voxel_mm / 1000.0, walk));
@@ -117,7 +117,7 @@ void RobotSide::MakeEveryWalk(long voxel_mm) const {
       failed_.emplace(key, cloud.status());
   }
   spdlog::debug("expected robot surfaces at {} mm voxels, all round and {} walks: {:.0f} ms", voxel_mm, kWalks,
-                std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count());
+                MsSince(t0));
 }
 
 std::shared_ptr<const PointCloud> RobotSide::Visible(std::size_t thinned_to) const {

@@ -3,7 +3,7 @@
 #include <spdlog/spdlog.h>
 
 #include "global_registration.h"
-#include "arref/icp/step_timer.h"
+#include "arref/base/clock.h"
 
 namespace arref {
 
@@ -37,7 +37,7 @@ Result<RegistrationOutput> RegisterGlobalThenIcp(GlobalAligner aligner, const Po
                                                  const GlobalParams& params) {
   const char* name = NameOf(aligner);
   RegistrationOutput out;
-  StepTimer timer(&out);
+  LapTimer laps;  // each step's time goes to out.step_ms
   PointCloud segmented;
   const PointCloud* scene = &scene_world;
   if (params.segmentation.enabled) {
@@ -46,17 +46,17 @@ Result<RegistrationOutput> RegisterGlobalThenIcp(GlobalAligner aligner, const Po
     segmented = std::move(*seg);
     scene = &segmented;
     out.stages.push_back("segment");
-    timer.Step("segmentation");
+    out.step_ms.emplace_back("segmentation", laps.Lap());
   }
   auto global = Align(aligner, model_base, *scene, params);
   if (!global.ok()) return global.status();  // the pipeline prefixes the method's name
   out.stages.push_back(name);
-  timer.Step("global-alignment");
+  out.step_ms.emplace_back("global-alignment", laps.Lap());
   spdlog::debug("{}: score {:.3f} after {} iterations", name, global->score, global->iterations);
   // ICP against the whole cropped scene, exactly as the ICP-only method would run.
   auto icp = RegisterPclIcp(model_base, scene_world, global->T_world_base, params.icp, false);
   if (!icp.ok()) return icp.status().WithContext("ICP refinement after " + std::string(name));
-  timer.Step("icp-refinement");
+  out.step_ms.emplace_back("icp-refinement", laps.Lap());
   out.T_world_base = icp->T_world_base;
   out.iterations = icp->iterations;
   out.converged = icp->converged;

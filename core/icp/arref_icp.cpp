@@ -27,7 +27,7 @@
 #include "arref/scene/sampling.h"
 #include "arref/scene/spatial_mesh.h"
 #include "arref/fusion/tracking_error.h"
-#include "arref/icp/step_timer.h"
+#include "arref/base/clock.h"
 
 namespace arref {
 namespace {
@@ -38,12 +38,10 @@ struct Candidate {
   int iterations = 0;
 };
 
-double Yaw(const Iso3& T) { return std::atan2(T.linear()(1, 0), T.linear()(0, 0)); }
-
 std::vector<Iso3> Hypotheses(const Iso3& seed, const ArrefIcpParams& p, int position_steps) {
   std::vector<Iso3> out;
   const Vec3 c = seed.translation();
-  const double yaw0 = Yaw(seed);
+  const double yaw0 = YawOf(seed);
   for (int ix = -position_steps; ix <= position_steps; ++ix)
     for (int iy = -position_steps; iy <= position_steps; ++iy) {
       if (position_steps > 0 && ix == 0 && iy == 0) continue;  // the centre was searched already
@@ -79,7 +77,7 @@ std::vector<Candidate> CoarseSearch(const PointCloud& coarse, const TargetCloud&
 }
 
 bool SamePose(const Iso3& a, const Iso3& b) {
-  const double dyaw = std::abs(std::remainder(Yaw(a) - Yaw(b), 2 * std::numbers::pi));
+  const double dyaw = std::abs(std::remainder(YawOf(a) - YawOf(b), 2 * std::numbers::pi));
   return (a.translation() - b.translation()).norm() < 0.05 && dyaw < 10 * std::numbers::pi / 180;
 }
 
@@ -308,15 +306,15 @@ Result<RegistrationOutput> RegisterArrefIcp(const ArrefIcpInput& in) {
   const TargetCloud& target = in.scene_target;
 
   RegistrationOutput out;
-  StepTimer timer(&out);
+  LapTimer laps;  // each step's time goes to out.step_ms
   const std::vector<Candidate> candidates = SearchPoses(coarse, target, in.T_world_seed, p, &out);
-  timer.Step("pose-search");
+  out.step_ms.emplace_back("pose-search", laps.Lap());
   std::vector<Candidate> refined;
   for (const auto& c : Distinct(candidates, static_cast<std::size_t>(p.refine_top)))
     refined.push_back(Refine(fine, target, Approach(approach, target, c, p), p, kPolishLevels));
   refined = Distinct(refined, 2);
   out.stages.push_back("arref-icp");
-  timer.Step("refine");
+  out.step_ms.emplace_back("refine", laps.Lap());
   if (in.model_expected) {
     std::shared_ptr<const PointCloud> fitted = model[2];  // the surface polished last, shared not copied
     int walk = -1;
@@ -324,14 +322,14 @@ Result<RegistrationOutput> RegisterArrefIcp(const ArrefIcpInput& in) {
       auto walked = RefineForWalk(in, fine, target, refined.front(), &fitted, &walk, &out.stages);
       if (!walked.ok()) return walked.status();
       refined.front() = *walked;
-      timer.Step("walk-choice");
+      out.step_ms.emplace_back("walk-choice", laps.Lap());
     }
     if (in.robot && in.scene_mesh_world && p.in_context) {
       refined.front() = RefineInContext(in, walk, target, refined.front(), &fitted, &out.stages);
-      timer.Step("context");
+      out.step_ms.emplace_back("context", laps.Lap());
     }
     refined.front() = ExactIfCloser(in, *fitted, target, refined.front(), &out.stages);
-    timer.Step("surface-choice");
+    out.step_ms.emplace_back("surface-choice", laps.Lap());
   }
   out.T_world_base = refined.front().T_world_base;
   out.score = refined.front().score;

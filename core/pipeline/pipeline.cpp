@@ -3,8 +3,7 @@
 #include <spdlog/spdlog.h>
 #include <tbb/task_group.h>
 
-#include <chrono>
-
+#include "arref/base/clock.h"
 #include "arref/fusion/robot_side.h"
 #include "arref/icp/fast_icp.h"
 #ifdef ARREF_WITH_PCL
@@ -26,14 +25,14 @@ class StageClock {
   void Start(std::string stage, double fraction) {
     Stop();
     stage_ = std::move(stage);
-    start_ = std::chrono::steady_clock::now();
+    laps_.Restart();
     if (progress_) progress_(stage_, fraction);
   }
   void Stop() {
     if (stage_.empty()) return;
-    const std::chrono::duration<double, std::milli> d = std::chrono::steady_clock::now() - start_;
-    out_->push_back({stage_, d.count()});
-    spdlog::debug("stage {}: {:.1f} ms", stage_, d.count());
+    const double ms = laps_.Lap();
+    out_->push_back({stage_, ms});
+    spdlog::debug("stage {}: {:.1f} ms", stage_, ms);
     stage_.clear();
   }
 
@@ -41,7 +40,7 @@ class StageClock {
   std::vector<StageTime>* out_;
   const ProgressFn& progress_;
   std::string stage_;
-  std::chrono::steady_clock::time_point start_;
+  LapTimer laps_;
 };
 
 // Waits for a task group's tasks when it goes out of scope, so that none outlives what it uses.

@@ -2,7 +2,10 @@
 
 #include <tbb/parallel_for.h>
 
+#include <array>
+#include <cmath>
 #include <string>
+#include <vector>
 
 #include "arref/scene/nearest_neighbor.h"
 
@@ -109,8 +112,44 @@ TriangleMesh TrianglesNear(const TriangleMesh& mesh, const PointIndex& points, d
   });
 }
 
-TriangleMesh RemoveDegenerateTriangles(const TriangleMesh& mesh, double min_area) {
-  return KeepTriangles(mesh, [&](const Triangle& t) { return TriangleArea(mesh, t) > min_area; });
+std::vector<Surface> SplitIntoSurfaces(const TriangleMesh& world, double chunk_m, double timestamp_s) {
+  using ChunkKey = std::array<int, 3>;
+  std::map<ChunkKey, std::vector<std::uint32_t>> chunks;
+  for (std::uint32_t t = 0; t < world.triangles.size(); ++t) {
+    const Triangle& tri = world.triangles[t];
+    const Vec3f c = (world.vertices[tri[0]] + world.vertices[tri[1]] + world.vertices[tri[2]]) / 3.0f;
+    ChunkKey key;
+    for (int a = 0; a < 3; ++a) key[a] = static_cast<int>(std::floor(c[a] / chunk_m));
+    chunks[key].push_back(t);
+  }
+  std::vector<Surface> surfaces;
+  // local[v]: v's index in the surface being built, valid where stamp[v] is that surface's id.
+  std::vector<std::uint32_t> local(world.vertices.size());
+  std::vector<std::uint64_t> stamp(world.vertices.size(), 0);
+  for (const auto& [key, tris] : chunks) {
+    Surface s;
+    s.id = surfaces.size() + 1;
+    s.timestamp_s = timestamp_s;
+    // The corner in double, then float: the same vertices as the simulator's cells have always had.
+    const Vec3 corner = Vec3(key[0], key[1], key[2]) * chunk_m;
+    s.T_world_surface = Iso3(Eigen::Translation3d(corner));
+    const Vec3f corner_f = corner.cast<float>();
+    for (std::uint32_t t : tris) {
+      Triangle out;
+      for (int k = 0; k < 3; ++k) {
+        const std::uint32_t v = world.triangles[t][k];
+        if (stamp[v] != s.id) {
+          stamp[v] = s.id;
+          local[v] = static_cast<std::uint32_t>(s.mesh.vertices.size());
+          s.mesh.vertices.push_back(world.vertices[v] - corner_f);
+        }
+        out[k] = local[v];
+      }
+      s.mesh.triangles.push_back(out);
+    }
+    surfaces.push_back(std::move(s));
+  }
+  return surfaces;
 }
 
 }  // namespace arref

@@ -3,10 +3,8 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
-#include <array>
 #include <chrono>
 #include <cmath>
-#include <map>
 #include <numbers>
 #include <sstream>
 #include <string>
@@ -180,46 +178,6 @@ Iso3 RandomWorldFrame(std::mt19937_64& rng) {
   return MakeYawPose(x, y, z, yaw(rng));
 }
 
-// Chunks the mesh on a world grid like the spatial mapper's surfaces; each chunk keeps its
-// vertices relative to its own corner.
-std::vector<Surface> SplitIntoSurfaces(const TriangleMesh& world, double chunk_m, double timestamp_s) {
-  using ChunkKey = std::array<int, 3>;
-  std::map<ChunkKey, std::vector<std::uint32_t>> chunks;
-  for (std::uint32_t t = 0; t < world.triangles.size(); ++t) {
-    const Triangle& tri = world.triangles[t];
-    const Vec3f c = (world.vertices[tri[0]] + world.vertices[tri[1]] + world.vertices[tri[2]]) / 3.0f;
-    ChunkKey key;
-    for (int a = 0; a < 3; ++a) key[a] = static_cast<int>(std::floor(c[a] / chunk_m));
-    chunks[key].push_back(t);
-  }
-  std::vector<Surface> surfaces;
-  std::vector<std::uint32_t> local(world.vertices.size());
-  std::vector<std::uint64_t> stamp(world.vertices.size(), 0);
-  for (const auto& [key, tris] : chunks) {
-    Surface s;
-    s.id = surfaces.size() + 1;
-    s.timestamp_s = timestamp_s;
-    const Vec3 corner = Vec3(key[0], key[1], key[2]) * chunk_m;
-    s.T_world_surface = Iso3(Eigen::Translation3d(corner));
-    const Vec3f corner_f = corner.cast<float>();
-    for (std::uint32_t t : tris) {
-      Triangle out;
-      for (int k = 0; k < 3; ++k) {
-        const std::uint32_t v = world.triangles[t][k];
-        if (stamp[v] != s.id) {
-          stamp[v] = s.id;
-          local[v] = static_cast<std::uint32_t>(s.mesh.vertices.size());
-          s.mesh.vertices.push_back(world.vertices[v] - corner_f);
-        }
-        out[k] = local[v];
-      }
-      s.mesh.triangles.push_back(out);
-    }
-    surfaces.push_back(std::move(s));
-  }
-  return surfaces;
-}
-
 // Ray casts every view from its true pose and fuses it at its believed pose, in the world
 // frame: the headset's voxel grid is aligned with its world, not with the cell.
 Result<TriangleMesh> ScanAndFuse(const CellScene& scene, const SimOptions& options, const Iso3& T_world_cell,
@@ -299,8 +257,7 @@ std::vector<Iso3> DrawSeeds(const Iso3& T_world_base, const SeedNoise& noise, in
   std::normal_distribution<double> horizontal(0.0, noise.horizontal_sigma_m), yaw_error(0.0, noise.yaw_sigma_deg * kDeg);
   std::uniform_real_distribution<double> vertical(0.0, noise.vertical_max_m);
   const Vec3 base = T_world_base.translation();
-  const Eigen::Matrix3d R = T_world_base.linear();
-  const double yaw = std::atan2(R(1, 0), R(0, 0));
+  const double yaw = YawOf(T_world_base);
   std::vector<Iso3> seeds;
   std::uniform_real_distribution<double> unit(0.0, 1.0);
   for (int i = 0; i < count; ++i) {

@@ -4,6 +4,7 @@
 
 #include <Eigen/Geometry>
 #include <array>
+#include <cmath>
 #include <limits>
 #include <cstdint>
 #include <vector>
@@ -61,5 +62,7 @@ Vec3f Centroid(const TriangleMesh& mesh, const Triangle& t);
 Iso3 MakePose(const Vec3& position, const Quat& orientation);
 // Rotation about +z (gravity up) by yaw radians, then translation.
 Iso3 MakeYawPose(double x, double y, double z, double yaw);
+// Heading of T's x axis about +z, in radians in (-pi, pi]: the yaw MakeYawPose takes.
+inline double YawOf(const Iso3& T) { return std::atan2(T.linear()(1, 0), T.linear()(0, 0)); }
 
 }  // namespace arref

@@ -5,6 +5,7 @@
 #include <functional>
 #include <map>
 #include <string>
+#include <vector>
 
 #include "arref/base/geometry.h"
 #include "arref/base/status.h"
@@ -29,7 +30,6 @@ class SpatialMesh {
  public:
   Status Upsert(Surface surface);  // validated first; a bad surface leaves the map unchanged
   bool Remove(std::uint64_t id);
-  void Clear() { surfaces_.clear(); }
   std::size_t size() const { return surfaces_.size(); }
   std::size_t vertex_count() const;
   const std::map<std::uint64_t, Surface>& surfaces() const { return surfaces_; }
@@ -51,7 +51,9 @@ TriangleMesh KeepTriangles(const TriangleMesh& mesh, const std::function<bool(co
 // vertices, unused ones included): the part of a mesh round a fitted model.
 TriangleMesh TrianglesNear(const TriangleMesh& mesh, const PointIndex& points, double distance_m);
 
-// Drops triangles with (near) zero area; the spatial mapper emits some.
-TriangleMesh RemoveDegenerateTriangles(const TriangleMesh& mesh, double min_area = 1e-12);
+// Splits a world mesh into surfaces like the spatial mapper's: one per chunk_m cube of a world
+// grid (the cube of a triangle's centroid), ids 1, 2, ... in grid order, each surface's vertices
+// relative to its cube's corner and stamped timestamp_s.
+std::vector<Surface> SplitIntoSurfaces(const TriangleMesh& world, double chunk_m, double timestamp_s);
 
 }  // namespace arref

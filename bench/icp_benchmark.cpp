@@ -1,6 +1,6 @@
 // One ICP iteration: arref's kernel (point-to-plane, and point-to-point like PCL's) against
 // PCL 1.13's ICP, on the same simulated small-configuration KR5 cell (16,000 scene points).
-// The hardware floor from the domain notes is N_source x ~150 ns / threads; the counters
+// The estimated hardware floor is N_source x ~150 ns / threads; the counters
 // report ns per source point.
 //   build/bench/arref_icp_benchmark --benchmark_repetitions=5 --benchmark_report_aggregates_only=true
 #include <benchmark/benchmark.h>

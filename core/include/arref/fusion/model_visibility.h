@@ -2,7 +2,7 @@
 //
 // A third to half of a robot is never seen by the headset, and surfaces that no one can see
 // at all (faces against the floor, undersides, surfaces enclosed by other links) drag ICP
-// 2-3 cm off when they are fitted (domain notes, "Measured here", lesson 1). They are found
+// 2-3 cm off when they are fitted (measured on the simulated cells, docs/results.md). They are found
 // here once per robot and joint state, by rendering the posed robot from eye positions.
 #pragma once
 

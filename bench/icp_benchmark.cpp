@@ -8,10 +8,13 @@
 #include <pcl/registration/icp.h>
 #include <tbb/global_control.h>
 
+#include <chrono>
 #include <memory>
+#include <thread>
 #include <utility>
 
 #include "arref/base/builtin.h"
+#include "arref/base/cancel.h"
 #include "arref/icp/fast_icp.h"
 #include "arref/fusion/model_reconstruction.h"
 #include "arref/fusion/model_visibility.h"
@@ -151,6 +154,32 @@ void BM_Request(benchmark::State& state) {
   for (auto _ : state) benchmark::DoNotOptimize(RegisterScene(*f.robot, f.scene_mesh, f.T_world_seed, options));
 }
 
+// How soon a cancel takes effect: a request (as BM_Request's default) is cancelled from another
+// thread the argument's milliseconds after it started; the time reported is from Cancel() to
+// RegisterScene's return (manual time). Counter "finished": runs done before the cancel came.
+void BM_CancelLatency(benchmark::State& state) {
+  const Fixture& f = Cell();
+  const RegistrationOptions options;
+  auto warm = RegisterScene(*f.robot, f.scene_mesh, f.T_world_seed, options);
+  if (!warm.ok()) return state.SkipWithError(warm.status().ToString().c_str());
+  int finished = 0;
+  for (auto _ : state) {
+    CancelToken token;
+    std::chrono::steady_clock::time_point cancelled_at;
+    std::thread canceller([&] {
+      std::this_thread::sleep_for(std::chrono::milliseconds(state.range(0)));
+      cancelled_at = std::chrono::steady_clock::now();
+      token.Cancel();
+    });
+    const auto report = RegisterScene(*f.robot, f.scene_mesh, f.T_world_seed, options, {}, &token);
+    const auto end = std::chrono::steady_clock::now();
+    canceller.join();
+    if (report.ok()) ++finished;  // done before the cancel: no latency to measure
+    state.SetIterationTime(report.ok() ? 0.0 : std::chrono::duration<double>(end - cancelled_at).count());
+  }
+  state.counters["finished"] = finished;
+}
+
 // The refit's expected surface alone: the chosen walk fused again with the mapped objects.
 void BM_ExpectedInContext(benchmark::State& state) {
   const Fixture& f = Cell();
@@ -198,6 +227,7 @@ void BM_NewJointStateOneByOne(benchmark::State& state) {
 // Wall time, and the CPU time of every thread: their ratio is how many of the cores the step keeps
 // busy (a ratio near the core count leaves nothing for more parallelism to gain).
 BENCHMARK(BM_Request)->Args({1, 1, 0})->Args({1, 0, 0})->Args({0, 1, 0})->Args({1, 1, 1})->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_CancelLatency)->Arg(5)->Arg(30)->Arg(80)->Arg(150)->UseManualTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_NewJointState)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_NewJointStateOneByOne)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ExpectedInContext)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);

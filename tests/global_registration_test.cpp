@@ -36,7 +36,7 @@ Result<RegistrationOutput> RunMethod(Method method, const RobotSurfaceScene& c, 
 class GlobalMethods : public ::testing::TestWithParam<const char*> {};
 
 TEST_P(GlobalMethods, FindTheRobotFarFromTheSeed) {
-  const RobotSurfaceScene c = MakeRobotSurfaceScene();
+  const ASSERT_OK_AND_ASSIGN(RobotSurfaceScene c, MakeRobotSurfaceScene());
   RegistrationOptions options;
   options.segmentation.enabled = false;  // nothing to segment: the scene is the robot
   auto method = ParseMethod(GetParam());
@@ -62,7 +62,7 @@ INSTANTIATE_TEST_SUITE_P(All, GlobalMethods, ::testing::Values("super4pcs", "fpf
 // against its base, which plane removal cannot cut away) must be reported, not registered.
 TEST(Segmentation, ReportsARobotTouchingAnotherObject) {
   spdlog::cfg::load_env_levels();
-  RobotSurfaceScene c = MakeRobotSurfaceScene();
+  ASSERT_OK_AND_ASSIGN(RobotSurfaceScene c, MakeRobotSurfaceScene());
   std::mt19937_64 rng(3);
   std::normal_distribution<double> gauss;
   // The ball's surface passes 1 cm behind the robot's rearmost point.
@@ -83,7 +83,7 @@ TEST(Segmentation, ReportsARobotTouchingAnotherObject) {
 }
 
 TEST(Super4pcs, RejectsBadParameters) {
-  const RobotSurfaceScene c = MakeRobotSurfaceScene();
+  const ASSERT_OK_AND_ASSIGN(RobotSurfaceScene c, MakeRobotSurfaceScene());
   RegistrationOptions options;
   options.segmentation.enabled = false;
   options.super4pcs.overlap = 0;

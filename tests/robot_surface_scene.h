@@ -13,13 +13,14 @@ struct RobotSurfaceScene {
   Iso3 T_world_base;
 };
 
-inline RobotSurfaceScene MakeRobotSurfaceScene() {
-  auto robot = RobotModel::Load(BuiltinRobotUrdf());
-  EXPECT_TRUE(robot.ok()) << robot.status().ToString();
+// A Result, so that a robot that fails to load fails the test (ASSERT_OK_AND_ASSIGN) rather
+// than being dereferenced.
+inline Result<RobotSurfaceScene> MakeRobotSurfaceScene() {
+  ARREF_ASSIGN_OR_RETURN(const RobotModel robot, RobotModel::Load(BuiltinRobotUrdf()));
   const JointValues joints = {{"joint_a2", -0.6}, {"joint_a3", 0.9}};
   RobotSurfaceScene c;
-  c.model_base = *SampleRobot(*robot, joints, 6000, 1);
-  c.scene_world = *SampleRobot(*robot, joints, 4000, 2);
+  ARREF_ASSIGN_OR_RETURN(c.model_base, SampleRobot(robot, joints, 6000, 1));
+  ARREF_ASSIGN_OR_RETURN(c.scene_world, SampleRobot(robot, joints, 4000, 2));
   c.T_world_base = MakeYawPose(1.2, -0.7, 0.3, 2.0);
   c.scene_world.Transform(c.T_world_base);
   return c;

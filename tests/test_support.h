@@ -16,6 +16,16 @@ inline bool HaveShared() { return std::filesystem::exists(Kr5PackageDir() + "/ur
 
 }  // namespace arref::testing
 
+// ASSERT_OK_AND_ASSIGN(lhs, expr): expr is a Result<T>; fails the test (returning from it) with
+// its Status when it holds none, else moves the value into lhs, which may declare a variable.
+#define ARREF_TEST_CONCAT_INNER_(a, b) a##b
+#define ARREF_TEST_CONCAT_(a, b) ARREF_TEST_CONCAT_INNER_(a, b)
+#define ASSERT_OK_AND_ASSIGN(lhs, expr) ASSERT_OK_AND_ASSIGN_IMPL_(ARREF_TEST_CONCAT_(assert_result_, __LINE__), lhs, expr)
+#define ASSERT_OK_AND_ASSIGN_IMPL_(result, lhs, expr)         \
+  auto result = (expr);                                     \
+  ASSERT_TRUE(result.ok()) << result.status().ToString();   \
+  lhs = std::move(result).value()
+
 // Tests on the vendor KR5 package need ../shared; CI has it, a user's fresh clone may not.
 #define ARREF_REQUIRE_SHARED()                                                              \
   do {                                                                                      \

@@ -40,9 +40,7 @@ void AddRobotOptions(CLI::App& app, RobotArgs& args) {
 Result<RobotModel> LoadRobot(const RobotArgs& args) {
   std::string urdf = args.urdf;
   if (urdf.empty()) {
-    auto builtin = BuiltinRobotUrdf();
-    if (!builtin.ok()) return builtin.status();
-    urdf = *builtin;
+    ARREF_ASSIGN_OR_RETURN(urdf, BuiltinRobotUrdf());
   }
   RobotLoadOptions options;
   options.package_path = args.package_path;
@@ -59,9 +57,9 @@ Result<JointValues> ParseJoints(const std::string& text) {
     const auto eq = item.find('=');
     if (eq == std::string::npos || eq == 0)
       return Status::InvalidArgument("--joints: '" + item + "' is not name=value");
-    auto value = ParseNumbers(item.substr(eq + 1), 1, "--joints " + item.substr(0, eq));
-    if (!value.ok()) return value.status();
-    joints[item.substr(0, eq)] = value->front();
+    ARREF_ASSIGN_OR_RETURN(const std::vector<double> value,
+                           ParseNumbers(item.substr(eq + 1), 1, "--joints " + item.substr(0, eq)));
+    joints[item.substr(0, eq)] = value.front();
   }
   return joints;
 }

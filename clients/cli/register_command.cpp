@@ -43,12 +43,10 @@ struct Inputs {
 
 // A JSON file's "head_path" in its "frame" (`arref simulate`'s truth file has both).
 Result<std::vector<Vec3>> ReadHeadPath(const std::string& file) {
-  auto j = ReadJsonFile(file);
-  if (!j.ok()) return j.status();
-  if (!j->contains("head_path")) return Status::InvalidArgument("no \"head_path\" in the file");
-  auto frame = FrameOfFile(*j);
-  if (!frame.ok()) return frame.status();
-  auto path = PositionsFromJson((*j)["head_path"], *frame);
+  ARREF_ASSIGN_OR_RETURN(const nlohmann::json j, ReadJsonFile(file));
+  if (!j.contains("head_path")) return Status::InvalidArgument("no \"head_path\" in the file");
+  ARREF_ASSIGN_OR_RETURN(const FrameConvention frame, FrameOfFile(j));
+  auto path = PositionsFromJson(j["head_path"], frame);
   if (!path.ok()) return path.status().WithContext("head_path");
   return path;
 }
@@ -63,9 +61,7 @@ Result<Inputs> ReadInputs(const RegisterArgs& args, FrameConvention frame) {
     if (!T.ok()) return T.status().WithContext("--truth " + args.truth + ": T_world_base");
     in.T_world_base_true = *T;
   }
-  auto joints = ParseJoints(args.robot.joints);
-  if (!joints.ok()) return joints.status();
-  in.joints = *joints;
+  ARREF_ASSIGN_OR_RETURN(in.joints, ParseJoints(args.robot.joints));
   if (args.robot.joints.empty() && in.truth && in.truth->contains("joints")) {  // the scene's own robot pose
     auto truth_joints = JointsFromJson((*in.truth)["joints"]);
     if (!truth_joints.ok()) return truth_joints.status().WithContext("--truth " + args.truth);

@@ -35,9 +35,8 @@ Result<std::vector<double>> ParseNumbers(const std::string& text, std::size_t co
 }
 
 Result<Iso3> ParsePose(const std::string& text, FrameConvention frame) {
-  auto v = ParseNumbers(text, 7, "pose x,y,z,qx,qy,qz,qw");
-  if (!v.ok()) return v.status();
-  return PoseFromNumbers(*v, frame);
+  ARREF_ASSIGN_OR_RETURN(const std::vector<double> v, ParseNumbers(text, 7, "pose x,y,z,qx,qy,qz,qw"));
+  return PoseFromNumbers(v, frame);
 }
 
 nlohmann::json MatrixToJson(const Iso3& T) {

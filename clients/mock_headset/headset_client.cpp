@@ -134,11 +134,9 @@ Result<pb::ServerMessage> Connection::Receive(double timeout_s) {
 // ---------------------------------------------------------------- scenes
 
 Result<HeadsetScene> SimulatedScene(std::uint64_t rng_seed) {
-  auto urdf = BuiltinRobotUrdf();
-  if (!urdf.ok()) return urdf.status();
-  auto robot = RobotModel::Load(*urdf);
-  if (!robot.ok()) return robot.status();
-  auto cell = sim::SimulateCell(*robot, sim::SmallPreset(), rng_seed);
+  ARREF_ASSIGN_OR_RETURN(const std::string urdf, BuiltinRobotUrdf());
+  ARREF_ASSIGN_OR_RETURN(const RobotModel robot, RobotModel::Load(urdf));
+  auto cell = sim::SimulateCell(robot, sim::SmallPreset(), rng_seed);
   if (!cell.ok()) return cell.status().WithContext("simulating a cell");
   HeadsetScene scene;
   scene.surfaces = std::move(cell->surfaces);
@@ -146,9 +144,8 @@ Result<HeadsetScene> SimulatedScene(std::uint64_t rng_seed) {
   scene.T_world_base_true = cell->T_world_base;
   scene.joints = cell->joints;
   scene.head_path_world = cell->head_path_world;
-  auto model = SampleRobot(*robot, cell->joints, 5000, 7);
-  if (!model.ok()) return model.status();
-  scene.model_points = std::move(model->points);
+  ARREF_ASSIGN_OR_RETURN(PointCloud model, SampleRobot(robot, cell->joints, 5000, 7));
+  scene.model_points = std::move(model.points);
   return scene;
 }
 
@@ -156,27 +153,26 @@ namespace {
 
 // The cell file `arref simulate` writes: the truth, the seeds and where the wearer walked.
 Status ReadTruth(const std::string& path, HeadsetScene* scene) {
-  auto j = ReadJsonFile(path);
-  if (!j.ok()) return j.status();
-  auto T = MatrixFromJson(j->value("T_world_base", nlohmann::json()));
+  ARREF_ASSIGN_OR_RETURN(const nlohmann::json j, ReadJsonFile(path));
+  auto T = MatrixFromJson(j.value("T_world_base", nlohmann::json()));
   if (!T.ok()) return T.status().WithContext(path + ": T_world_base");
   scene->T_world_base_true = *T;
-  auto frame = FrameOfFile(*j);
+  auto frame = FrameOfFile(j);
   if (!frame.ok()) return frame.status().WithContext(path);
-  const nlohmann::json seeds = j->value("seeds", nlohmann::json::array());
+  const nlohmann::json seeds = j.value("seeds", nlohmann::json::array());
   if (!seeds.is_array()) return Status::InvalidArgument(path + ": seeds must be an array of poses");
   for (std::size_t i = 0; i < seeds.size(); ++i) {
     auto seed = PoseFromJson(seeds[i], *frame);
     if (!seed.ok()) return seed.status().WithContext(path + ": seeds[" + std::to_string(i) + "]");
     scene->seeds.push_back(*seed);
   }
-  if (j->contains("joints")) {
-    auto joints = JointsFromJson((*j)["joints"]);
+  if (j.contains("joints")) {
+    auto joints = JointsFromJson(j["joints"]);
     if (!joints.ok()) return joints.status().WithContext(path);
     scene->joints = *joints;
   }
-  if (j->contains("head_path")) {
-    auto path_world = PositionsFromJson((*j)["head_path"], *frame);
+  if (j.contains("head_path")) {
+    auto path_world = PositionsFromJson(j["head_path"], *frame);
     if (!path_world.ok()) return path_world.status().WithContext(path + ": head_path");
     scene->head_path_world = std::move(*path_world);
   }
@@ -196,12 +192,10 @@ Result<HeadsetScene> SceneFromFiles(const std::string& mesh_path, FrameConventio
   if (seed) scene.seeds.insert(scene.seeds.begin(), *seed);
   if (scene.seeds.empty()) return Status::InvalidArgument("no seed: pass --seed or a --truth file with seeds");
   if (scene.T_world_base_true) {
-    auto urdf = BuiltinRobotUrdf();
-    auto robot = urdf.ok() ? RobotModel::Load(*urdf) : Result<RobotModel>(urdf.status());
-    if (!robot.ok()) return robot.status();
-    auto model = SampleRobot(*robot, scene.joints, 5000, 7);
-    if (!model.ok()) return model.status();
-    scene.model_points = std::move(model->points);
+    ARREF_ASSIGN_OR_RETURN(const std::string urdf, BuiltinRobotUrdf());
+    ARREF_ASSIGN_OR_RETURN(const RobotModel robot, RobotModel::Load(urdf));
+    ARREF_ASSIGN_OR_RETURN(PointCloud model, SampleRobot(robot, scene.joints, 5000, 7));
+    scene.model_points = std::move(model.points);
   }
   return scene;
 }

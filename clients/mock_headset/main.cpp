@@ -72,15 +72,14 @@ Misbehaviour ChosenMisbehaviour(const Args& a) {
 
 Result<HeadsetScene> BuildScene(const Args& a) {
   if (a.scene.empty()) return SimulatedScene(a.rng_seed);
-  auto frame = ParseFrameConvention(a.frame);
-  if (!frame.ok()) return frame.status();
+  ARREF_ASSIGN_OR_RETURN(const FrameConvention frame, ParseFrameConvention(a.frame));
   std::optional<Iso3> seed;
   if (!a.seed.empty()) {
-    auto s = ParsePose(a.seed, *frame);
+    auto s = ParsePose(a.seed, frame);
     if (!s.ok()) return s.status().WithContext("--seed");
     seed = *s;
   }
-  return SceneFromFiles(a.scene, *frame, a.truth, seed);
+  return SceneFromFiles(a.scene, frame, a.truth, seed);
 }
 
 nlohmann::json RunJson(const HeadsetRun& run) {

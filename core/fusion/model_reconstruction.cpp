@@ -132,22 +132,25 @@ ExpectedSurfaceMaker::View ExpectedSurfaceMaker::Render(const Rig& rig, std::siz
 }
 
 // The robot alone: its images and their bands as MakeMany shares them.
-Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const Rig& rig, const std::vector<const View*>& robot_views) const {
+Result<TriangleMesh> ExpectedSurfaceMaker::Fuse(const Rig& rig, const std::vector<const View*>& robot_views,
+                                                const CancelToken* cancel) const {
   TsdfVolume volume(rig.volume);
   std::vector<TsdfVolume::Image> images;
   for (std::size_t a = 0; a < rig.T_base_cameras.size(); ++a)
     images.push_back({rig.T_base_cameras[a], &robot_views[a]->range, &robot_views[a]->incidence, &robot_views[a]->band});
-  ARREF_RETURN_IF_ERROR(volume.IntegrateAll(rig.camera, images));
+  ARREF_RETURN_IF_ERROR(volume.IntegrateAll(rig.camera, images, cancel));
   return volume.ExtractMesh();
 }
 
 // The robot with the objects round it: scene holds both.
-Result<TriangleMesh> ExpectedSurfaceMaker::FuseInContext(const Rig& rig, const RayCaster& scene) const {
+Result<TriangleMesh> ExpectedSurfaceMaker::FuseInContext(const Rig& rig, const RayCaster& scene,
+                                                         const CancelToken* cancel) const {
   TsdfVolume volume(rig.volume);
-  const std::vector<View> views = ViewsInContext(rig, scene, volume);
+  const std::vector<View> views = ViewsInContext(rig, scene, volume, cancel);
+  if (Cancelled(cancel)) return Status::Cancelled("expected surface in context: cancelled while rendering");
   std::vector<TsdfVolume::Image> images;
   for (std::size_t a = 0; a < views.size(); ++a) images.push_back({rig.T_base_cameras[a], &views[a].range, &views[a].incidence});
-  ARREF_RETURN_IF_ERROR(volume.IntegrateAll(rig.camera, images));
+  ARREF_RETURN_IF_ERROR(volume.IntegrateAll(rig.camera, images, cancel));
   return volume.ExtractMesh();
 }
 
@@ -155,9 +158,13 @@ Result<TriangleMesh> ExpectedSurfaceMaker::FuseInContext(const Rig& rig, const R
 // volume's band, not on what earlier eyes allocated in it. Pixels whose rays miss the band
 // change no voxel of it, so they are not traced (exact).
 std::vector<ExpectedSurfaceMaker::View> ExpectedSurfaceMaker::ViewsInContext(const Rig& rig, const RayCaster& scene,
-                                                                             const TsdfVolume& volume) const {
+                                                                             const TsdfVolume& volume,
+                                                                             const CancelToken* cancel) const {
   std::vector<View> views(rig.T_base_cameras.size());
+  // Each eye polls the token before it renders: once cancelled, the images left are skipped
+  // (FuseInContext then fuses none of them).
   tbb::parallel_for(std::size_t{0}, views.size(), [&](std::size_t a) {
+    if (Cancelled(cancel)) return;
     const PixelMask traced = volume.NearPixels(rig.camera, rig.T_base_cameras[a]);
     views[a].range = scene.Render(rig.camera, rig.T_base_cameras[a], rig.max_range, &views[a].incidence, &traced);
   });
@@ -187,17 +194,18 @@ Result<PointCloud> ExpectedSurfaceMaker::Make(const ReconstructionOptions& optio
 
 Result<PointCloud> ExpectedSurfaceMaker::MakeInContext(const ReconstructionOptions& options, std::size_t samples,
                                                        const TriangleMesh& scene_world, const Iso3& T_world_base,
-                                                       double clearance_m) const {
+                                                       double clearance_m, const CancelToken* cancel) const {
   const TriangleMesh context_base = Context(scene_world, T_world_base, clearance_m);
-  if (context_base.empty()) return Make(options, samples);
+  if (context_base.empty()) return std::move(MakeMany({options}, samples, cancel).front());
+  if (Cancelled(cancel)) return Status::Cancelled("expected surface in context: cancelled");
   // Robot and objects are traced as one scene, once per pixel; the robot through the BVH it
   // keeps (an Embree instance), so only the objects' is built per request.
   auto caster = RayCaster::Create(context_base, RayCaster::Build::kForOneUse, parts_->caster);
   if (!caster.ok()) return caster.status().WithContext("expected surface in context");
   std::vector<Vec3f> near = FusedPart(context_base, options);
-  if (near.empty()) return Sample(options, *caster, nullptr, samples);  // objects that only hide the robot
+  if (near.empty()) return Sample(options, *caster, nullptr, samples, cancel);  // objects that only hide the robot
   const PointIndex context(std::move(near));
-  return Sample(options, *caster, &context, samples);
+  return Sample(options, *caster, &context, samples, cancel);
 }
 
 // Points on the objects in the fused band round the robot, where they can border its shell: two
@@ -225,9 +233,10 @@ TriangleMesh ExpectedSurfaceMaker::Context(const TriangleMesh& scene_world, cons
 }
 
 Result<PointCloud> ExpectedSurfaceMaker::Sample(const ReconstructionOptions& options, const RayCaster& scene,
-                                                const PointIndex* context, std::size_t samples) const {
+                                                const PointIndex* context, std::size_t samples,
+                                                const CancelToken* cancel) const {
   ARREF_RETURN_IF_ERROR(CheckOptions(options));
-  return SampleFused(options, FuseInContext(Eyes(options), scene), context, samples);
+  return SampleFused(options, FuseInContext(Eyes(options), scene, cancel), context, samples);
 }
 
 Result<PointCloud> ExpectedSurfaceMaker::SampleFused(const ReconstructionOptions& options, Result<TriangleMesh> fused,
@@ -241,7 +250,10 @@ Result<PointCloud> ExpectedSurfaceMaker::SampleFused(const ReconstructionOptions
 }
 
 std::vector<Result<PointCloud>> ExpectedSurfaceMaker::MakeMany(const std::vector<ReconstructionOptions>& options,
-                                                               std::size_t samples) const {
+                                                               std::size_t samples, const CancelToken* cancel) const {
+  const auto cancelled = [&] {
+    return std::vector<Result<PointCloud>>(options.size(), Status::Cancelled("expected surfaces: cancelled"));
+  };
   std::vector<Result<PointCloud>> clouds;
   std::vector<Rig> rigs;  // of the options that make sense; the others fail alone
   std::vector<std::size_t> rig_of_options;
@@ -272,16 +284,19 @@ std::vector<Result<PointCloud>> ExpectedSurfaceMaker::MakeMany(const std::vector
     }
   std::vector<View> views;
   for (const auto& [rig, eye] : distinct) {
+    if (Cancelled(cancel)) return cancelled();
     views.push_back(Render(*rig, eye));
     views.back().band = TsdfVolume::BandBlocks(rig->volume, rig->camera, rig->T_base_cameras[eye], views.back().range);
   }
   spdlog::debug("expected surfaces: {} surfaces from {} distinct eyes", rigs.size(), distinct.size());
   for (std::size_t i = 0; i < options.size(); ++i) {
     if (!clouds[i].ok()) continue;
+    if (Cancelled(cancel)) return cancelled();
     const std::size_t r = rig_of_options[i];
     std::vector<const View*> view_of_eye;
     for (std::size_t slot : slot_of_eye[r]) view_of_eye.push_back(&views[slot]);
-    clouds[i] = SampleFused(options[i], Fuse(rigs[r], view_of_eye), nullptr, samples);
+    clouds[i] = SampleFused(options[i], Fuse(rigs[r], view_of_eye, cancel), nullptr, samples);
+    if (clouds[i].status().code() == StatusCode::kCancelled) return cancelled();
   }
   return clouds;
 }
@@ -289,9 +304,8 @@ std::vector<Result<PointCloud>> ExpectedSurfaceMaker::MakeMany(const std::vector
 Result<PointCloud> ExpectedRobotSurface(const TriangleMesh& robot_base, const ReconstructionOptions& options,
                                         std::size_t samples, std::uint64_t seed) {
   ARREF_RETURN_IF_ERROR(CheckOptions(options));
-  auto maker = ExpectedSurfaceMaker::Create(robot_base, seed);
-  if (!maker.ok()) return maker.status();
-  return maker->Make(options, samples);
+  ARREF_ASSIGN_OR_RETURN(const ExpectedSurfaceMaker maker, ExpectedSurfaceMaker::Create(robot_base, seed));
+  return maker.Make(options, samples);
 }
 
 double MedianEdgeLength(const TriangleMesh& mesh) {

@@ -56,58 +56,60 @@ Result<PointCloud> SamplePosedRobot(const TriangleMesh& mesh_base, const std::st
   PointCloud cloud = SampleSurface(mesh_base, samples, seed);
   auto visibility = ModelVisibility(mesh_base, cloud);
   if (!visibility.ok()) return visibility.status().WithContext("robot '" + name + "'");
-  cloud.visibility = std::move(*visibility);
+  cloud.visibility = std::move(visibility).value();
   return cloud;
 }
 
 Result<PointCloud> SampleRobot(const RobotModel& robot, const JointValues& joints, std::size_t samples,
                                std::uint64_t seed) {
-  auto mesh = robot.PosedMesh(joints);
-  if (!mesh.ok()) return mesh.status();
-  return SamplePosedRobot(*mesh, robot.name(), samples, seed);
+  ARREF_ASSIGN_OR_RETURN(const TriangleMesh mesh, robot.PosedMesh(joints));
+  return SamplePosedRobot(mesh, robot.name(), samples, seed);
 }
 
 Result<std::shared_ptr<const RobotSide>> RobotSide::Create(const RobotModel& robot, const JointValues& joints,
                                                            std::size_t samples, std::uint64_t seed) {
-  auto mesh = robot.PosedMesh(joints);
-  if (!mesh.ok()) return mesh.status();
-  auto cloud = SamplePosedRobot(*mesh, robot.name(), samples, seed);
-  if (!cloud.ok()) return cloud.status();
-  return std::shared_ptr<const RobotSide>(new RobotSide(std::move(*mesh), std::move(*cloud), seed));
+  ARREF_ASSIGN_OR_RETURN(TriangleMesh mesh, robot.PosedMesh(joints));
+  ARREF_ASSIGN_OR_RETURN(PointCloud cloud, SamplePosedRobot(mesh, robot.name(), samples, seed));
+  return std::shared_ptr<const RobotSide>(new RobotSide(std::move(mesh), std::move(cloud), seed));
 }
 
-Result<std::shared_ptr<const PointCloud>> RobotSide::Expected(double voxel_m, int walk, std::size_t thinned_to) const {
+Result<std::shared_ptr<const PointCloud>> RobotSide::Expected(double voxel_m, int walk, std::size_t thinned_to,
+                                                              const CancelToken* cancel) const {
   ARREF_RETURN_IF_ERROR(CheckWalk(walk));
   // Meshes a fraction of a millimetre apart fuse alike.
   const ExpectedKey key{std::lround(voxel_m * 1000), walk, thinned_to};
   // Built under the lock: concurrent requests for the same voxel wait for one build.
   std::lock_guard lock(mutex_);
-  return ExpectedLocked(key);
+  return ExpectedLocked(key, cancel);
 }
 
-Result<std::shared_ptr<const PointCloud>> RobotSide::ExpectedLocked(const ExpectedKey& key) const {
+Result<std::shared_ptr<const PointCloud>> RobotSide::ExpectedLocked(const ExpectedKey& key,
+                                                                    const CancelToken* cancel) const {
   if (auto it = expected_.find(key); it != expected_.end()) return it->second;
   const auto [voxel_mm, walk, thinned_to] = key;
   if (thinned_to > 0) {  // thinned from the whole surface, once
-    auto whole = ExpectedLocked({voxel_mm, walk, 0});
-    if (!whole.ok()) return whole.status();
-    return expected_.emplace(key, std::make_shared<const PointCloud>(Thinned(**whole, thinned_to))).first->second;
+    ARREF_ASSIGN_OR_RETURN(const auto whole, ExpectedLocked({voxel_mm, walk, 0}, cancel));
+    return expected_.emplace(key, std::make_shared<const PointCloud>(Thinned(*whole, thinned_to))).first->second;
   }
   if (auto it = failed_.find(key); it != failed_.end()) return it->second;
-  MakeEveryWalk(voxel_mm);
+  ARREF_RETURN_IF_ERROR(MakeEveryWalk(voxel_mm, cancel));
   if (auto it = failed_.find(key); it != failed_.end()) return it->second;
-  return expected_.at(key);
+  if (auto it = expected_.find(key); it != expected_.end()) return it->second;
+  return Status::Internal(fmt::format("expected surface at {} mm, walk {}: neither made nor failed", voxel_mm, walk));
 }
 
 // The walk choice lays every walk's surface on the scene, so all of them are made together:
 // they share most eyes. A walk's failure is kept, so that asking again does not remake them all.
-void RobotSide::MakeEveryWalk(long voxel_mm) const {
+Status RobotSide::MakeEveryWalk(long voxel_mm, const CancelToken* cancel) const {
   const auto t0 = SteadyClock::now();
   auto maker = Maker();
   std::vector<ReconstructionOptions> options;
   for (int walk = -1; walk < kWalks; ++walk) options.push_back(WalkOptions(voxel_mm / 1000.0, walk));
-  auto clouds = maker.ok() ? (*maker)->MakeMany(options, samples_.size())
+  auto clouds = maker.ok() ? (*maker)->MakeMany(options, samples_.size(), cancel)
                            : std::vector<Result<PointCloud>>(options.size(), maker.status());
+  // A cancel is the request's, not the surfaces': kept, it would fail the next request too.
+  for (const auto& cloud : clouds)
+    if (cloud.status().code() == StatusCode::kCancelled) return cloud.status();
   for (int walk = -1; walk < kWalks; ++walk) {
     auto& cloud = clouds[static_cast<std::size_t>(walk + 1)];
     const ExpectedKey key{voxel_mm, walk, 0};
@@ -118,6 +120,7 @@ void RobotSide::MakeEveryWalk(long voxel_mm) const {
   }
   spdlog::debug("expected robot surfaces at {} mm voxels, all round and {} walks: {:.0f} ms", voxel_mm, kWalks,
                 MsSince(t0));
+  return Status::Ok();
 }
 
 std::shared_ptr<const PointCloud> RobotSide::Visible(std::size_t thinned_to) const {
@@ -129,9 +132,8 @@ std::shared_ptr<const PointCloud> RobotSide::Visible(std::size_t thinned_to) con
 
 Result<std::shared_ptr<const ExpectedSurfaceMaker>> RobotSide::Maker() const {
   if (!maker_) {
-    auto maker = ExpectedSurfaceMaker::Create(mesh_base_, seed_);
-    if (!maker.ok()) return maker.status();
-    maker_ = std::make_shared<const ExpectedSurfaceMaker>(std::move(*maker));
+    ARREF_ASSIGN_OR_RETURN(ExpectedSurfaceMaker maker, ExpectedSurfaceMaker::Create(mesh_base_, seed_));
+    maker_ = std::make_shared<const ExpectedSurfaceMaker>(std::move(maker));
   }
   return maker_;
 }
@@ -139,14 +141,13 @@ Result<std::shared_ptr<const ExpectedSurfaceMaker>> RobotSide::Maker() const {
 std::vector<Vec3> RobotSide::RefitEyes(int walk) { return EyePositions(RefitOptions(0.0, walk)); }
 
 Result<PointCloud> RobotSide::ExpectedInContext(double voxel_m, int walk, const TriangleMesh& scene_world,
-                                                const Iso3& T_world_base, const std::vector<Vec3>& eyes_base) const {
+                                                const Iso3& T_world_base, const std::vector<Vec3>& eyes_base,
+                                                const CancelToken* cancel) const {
   ARREF_RETURN_IF_ERROR(CheckWalk(walk));
   std::shared_ptr<const ExpectedSurfaceMaker> maker;
   {
     std::lock_guard lock(mutex_);
-    auto m = Maker();
-    if (!m.ok()) return m.status();
-    maker = *m;
+    ARREF_ASSIGN_OR_RETURN(maker, Maker());
   }
   const double clearance = std::max(kContextClearanceM, 1.5 * voxel_m);
   ReconstructionOptions options = RefitOptions(voxel_m, walk);
@@ -154,7 +155,7 @@ Result<PointCloud> RobotSide::ExpectedInContext(double voxel_m, int walk, const 
   // eyes than 24 lose accuracy (docs/engine.md, "Refit in context").
   options.pixels_per_voxel = 1.0;
   for (const Vec3& eye : eyes_base) options.eyes_base.push_back({eye.x(), eye.y(), eye.z()});
-  return maker->MakeInContext(options, samples_.size(), scene_world, T_world_base, clearance);
+  return maker->MakeInContext(options, samples_.size(), scene_world, T_world_base, clearance, cancel);
 }
 
 }  // namespace arref

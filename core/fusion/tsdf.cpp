@@ -201,23 +201,28 @@ Status TsdfVolume::Integrate(const PinholeCamera& camera, const Iso3& T_volume_c
 // Blocks are allocated image by image, as Integrate does (which blocks an image adds depends on
 // which are there, not on their voxels). Then each block takes, in order, the images from the
 // one that added it on, in one task: the same updates in the same order as one call per image.
-Status TsdfVolume::IntegrateAll(const PinholeCamera& camera, const std::vector<Image>& images) {
+Status TsdfVolume::IntegrateAll(const PinholeCamera& camera, const std::vector<Image>& images,
+                                const CancelToken* cancel) {
   for (const Image& image : images)
     if (image.incidence->size() != image.range->size())
       return Status::InvalidArgument("TSDF: incidence image size differs from range");
   std::vector<std::size_t> first_image(blocks_.size(), 0);  // per block, the image that allocated it
   std::vector<Iso3> T_camera_volume;
   for (std::size_t a = 0; a < images.size(); ++a) {
+    if (Cancelled(cancel)) return Status::Cancelled("TSDF fusion cancelled");
     const Image& image = images[a];
     ARREF_RETURN_IF_ERROR(Allocate(image.band ? *image.band
                                               : BandBlocks(options_, camera, image.T_volume_camera, *image.range, this)));
     first_image.resize(blocks_.size(), a);
     T_camera_volume.push_back(image.T_volume_camera.inverse());
   }
+  // A block's images take microseconds: polled per block, a cancel skips the rest.
   tbb::parallel_for(std::size_t{0}, blocks_.size(), [&](std::size_t i) {
+    if (Cancelled(cancel)) return;
     for (std::size_t a = first_image[i]; a < images.size(); ++a)
       UpdateBlock(blocks_[i], camera, T_camera_volume[a], *images[a].range, *images[a].incidence);
   });
+  if (Cancelled(cancel)) return Status::Cancelled("TSDF fusion cancelled");
   return Status::Ok();
 }
 

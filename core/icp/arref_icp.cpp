@@ -56,23 +56,42 @@ std::vector<Iso3> Hypotheses(const Iso3& seed, const ArrefIcpParams& p, int posi
 // Coarse 4-DoF alignment of each hypothesis on a thin model, scored at 3 cm. Hypotheses run
 // in parallel (each small ICP on one thread scales better than splitting 400 points).
 // arref-icp's ICP stays in the 4-DoF subgroup (robots stand upright in a gravity-aligned world).
-IcpSettings YawOnly(const ArrefIcpParams& p, int max_iterations) {
+// Every ICP of the method polls the request's token before each iteration (fast_icp.h).
+IcpSettings YawOnly(const ArrefIcpParams& p, int max_iterations, const CancelToken* cancel) {
   IcpSettings s;
   s.metric = p.metric;
   s.yaw_only = true;
   s.max_iterations = max_iterations;
+  s.cancel = cancel;
   return s;
 }
 
-std::vector<Candidate> CoarseSearch(const PointCloud& coarse, const TargetCloud& target,
-                                    const std::vector<Iso3>& starts, const ArrefIcpParams& p) {
-  const IcpSettings s = YawOnly(p, 6);
+Status CancelledIn(const char* step) { return Status::Cancelled(fmt::format("arref-icp: cancelled in the {}", step)); }
+
+// AlignCoarseToFine, with a cancelled alignment as the error it is for the method.
+Result<IcpStats> AlignOrCancel(const PointCloud& source, const TargetCloud& target, const Iso3& start,
+                               const std::vector<double>& levels, const IcpSettings& s, const char* step,
+                               std::span<const float> weights = {}) {
+  ARREF_ASSIGN_OR_RETURN(IcpStats st, AlignCoarseToFine(source, target, start, levels, s, weights));
+  if (st.cancelled) return CancelledIn(step);
+  return st;
+}
+
+Result<std::vector<Candidate>> CoarseSearch(const PointCloud& coarse, const TargetCloud& target,
+                                            const std::vector<Iso3>& starts, const ArrefIcpParams& p,
+                                            const CancelToken* cancel) {
+  const IcpSettings s = YawOnly(p, 6, cancel);
   std::vector<Candidate> out(starts.size());
+  // Each hypothesis polls the token (before it starts and in every iteration), so a cancel
+  // ends the running ones within an iteration and skips the rest; what they leave is dropped.
   tbb::parallel_for(std::size_t{0}, starts.size(), [&](std::size_t i) {
-    const IcpStats st = AlignCoarseToFine(coarse, target, starts[i], {0.3, 0.15, 0.08}, s);
-    out[i] = {st.T_target_source, ScoreAlignment(coarse, target, st.T_target_source, 0.03, 0.5).inlier_fraction,
-              st.iterations};
+    if (Cancelled(cancel)) return;
+    const Result<IcpStats> st = AlignCoarseToFine(coarse, target, starts[i], {0.3, 0.15, 0.08}, s);
+    if (!st.ok() || st->cancelled) return;  // no weights: only a cancel stops it
+    out[i] = {st->T_target_source, ScoreAlignment(coarse, target, st->T_target_source, 0.03, 0.5).inlier_fraction,
+              st->iterations};
   });
+  if (Cancelled(cancel)) return CancelledIn("pose search");
   return out;
 }
 
@@ -99,31 +118,35 @@ std::vector<Candidate> Distinct(std::vector<Candidate> all, std::size_t count) {
 const std::vector<double> kApproachLevels = {0.08, 0.04};
 const std::vector<double> kPolishLevels = {0.02, 0.012};
 
-Candidate Approach(const PointCloud& approach, const TargetCloud& target, const Candidate& start,
-                   const ArrefIcpParams& p) {
-  const IcpStats st = AlignCoarseToFine(approach, target, start.T_world_base, kApproachLevels, YawOnly(p, 15));
-  return {st.T_target_source, start.score, start.iterations + st.iterations};
+Result<Candidate> Approach(const PointCloud& approach, const TargetCloud& target, const Candidate& start,
+                           const ArrefIcpParams& p, const CancelToken* cancel) {
+  ARREF_ASSIGN_OR_RETURN(const IcpStats st, AlignOrCancel(approach, target, start.T_world_base, kApproachLevels,
+                                                          YawOnly(p, 15, cancel), "approach"));
+  return Candidate{st.T_target_source, start.score, start.iterations + st.iterations};
 }
 
-Candidate Refine(const PointCloud& fine, const TargetCloud& target, const Candidate& start, const ArrefIcpParams& p,
-                 const std::vector<double>& levels, std::span<const float> weights = {}) {
-  IcpSettings s = YawOnly(p, 15);
-  IcpStats st = AlignCoarseToFine(fine, target, start.T_world_base, levels, s, weights);
+Result<Candidate> Refine(const PointCloud& fine, const TargetCloud& target, const Candidate& start,
+                         const ArrefIcpParams& p, const std::vector<double>& levels, const CancelToken* cancel,
+                         std::span<const float> weights = {}) {
+  IcpSettings s = YawOnly(p, 15, cancel);
+  ARREF_ASSIGN_OR_RETURN(IcpStats st, AlignOrCancel(fine, target, start.T_world_base, levels, s, "refinement", weights));
   int iterations = start.iterations + st.iterations;
   if (p.final_six_dof) {
     s.yaw_only = false;
-    st = AlignCoarseToFine(fine, target, st.T_target_source, {0.012}, s, weights);
+    ARREF_ASSIGN_OR_RETURN(st, AlignOrCancel(fine, target, st.T_target_source, {0.012}, s, "refinement", weights));
     iterations += st.iterations;
   }
-  return {st.T_target_source, ScoreAlignment(fine, target, st.T_target_source, 0.02, 0.5).inlier_fraction, iterations};
+  return Candidate{st.T_target_source, ScoreAlignment(fine, target, st.T_target_source, 0.02, 0.5).inlier_fraction,
+                   iterations};
 }
 
 // A refined pose polished with another surface: the pose moves, its score stays, the
 // iterations add up.
-Candidate Polish(const PointCloud& surface, const TargetCloud& target, const Candidate& best, const ArrefIcpParams& p,
-                 std::span<const float> weights = {}) {
-  const Candidate c = Refine(surface, target, {best.T_world_base, best.score, 0}, p, kPolishLevels, weights);
-  return {c.T_world_base, best.score, best.iterations + c.iterations};
+Result<Candidate> Polish(const PointCloud& surface, const TargetCloud& target, const Candidate& best,
+                         const ArrefIcpParams& p, const CancelToken* cancel, std::span<const float> weights = {}) {
+  ARREF_ASSIGN_OR_RETURN(const Candidate c,
+                         Refine(surface, target, {best.T_world_base, best.score, 0}, p, kPolishLevels, cancel, weights));
+  return Candidate{c.T_world_base, best.score, best.iterations + c.iterations};
 }
 
 // The expected surface assumes the robot was mapped from all round; a user maps one side, and
@@ -138,10 +161,11 @@ Result<Candidate> RefineForWalk(const ArrefIcpInput& in, const PointCloud& all_r
   const ArrefIcpParams& p = in.params;
   std::vector<std::shared_ptr<const PointCloud>> surfaces;  // the walks' surfaces, thinned as the all-round one
   for (int walk = 0; walk < RobotSide::kWalks; ++walk) {
-    auto surface = in.robot->Expected(in.voxel_m, walk, p.fine_points);  // built once, then cached
+    auto surface = in.robot->Expected(in.voxel_m, walk, p.fine_points, in.cancel);  // built once, then cached
     if (!surface.ok()) return surface.status().WithContext("arref-icp");
     surfaces.push_back(*surface);
   }
+  if (Cancelled(in.cancel)) return CancelledIn("walk choice");
   std::vector<double> d(surfaces.size());
   tbb::parallel_for(std::size_t{0}, surfaces.size(), [&](std::size_t w) {
     d[w] = MedianPlaneDistance(*surfaces[w], target, best.T_world_base, 0.03, 0.5);
@@ -156,7 +180,7 @@ Result<Candidate> RefineForWalk(const ArrefIcpInput& in, const PointCloud& all_r
   if (best_walk < 0) return best;
   *fitted = surfaces[best_walk];
   stages->push_back(fmt::format("walk-{}", best_walk));
-  return Polish(**fitted, target, best, p);
+  return Polish(**fitted, target, best, p, in.cancel);
 }
 
 // The scene round the fitted surface, sampled at ArrefIcpParams::context_target_density per
@@ -199,8 +223,8 @@ std::vector<Vec3> EyesOfPath(std::span<const Vec3> path_world, const Iso3& T_wor
 // fuse with its shell; fitted without them, the robot is pulled towards them (about 4 mm
 // towards a table, even without noise). The chosen walk's surface is fused again with the mapped objects
 // round the fitted pose, and the pose polished with it.
-Candidate RefineInContext(const ArrefIcpInput& in, int walk, const TargetCloud& target, const Candidate& best,
-                          std::shared_ptr<const PointCloud>* fitted, std::vector<std::string>* stages) {
+Result<Candidate> RefineInContext(const ArrefIcpInput& in, int walk, const TargetCloud& target, const Candidate& best,
+                                  std::shared_ptr<const PointCloud>* fitted, std::vector<std::string>* stages) {
   const std::vector<Vec3> eyes = EyesOfPath(in.head_path_world, best.T_world_base);
   if (!eyes.empty()) {
     stages->push_back("head-path");
@@ -209,7 +233,9 @@ Candidate RefineInContext(const ArrefIcpInput& in, int walk, const TargetCloud& 
                  kFewestPathEyes, kNearestEyeM, kFarthestEyeM, walk);
     stages->push_back("head-path-unused");
   }
-  auto surface = in.robot->ExpectedInContext(in.voxel_m, walk, *in.scene_mesh_world, best.T_world_base, eyes);
+  auto surface =
+      in.robot->ExpectedInContext(in.voxel_m, walk, *in.scene_mesh_world, best.T_world_base, eyes, in.cancel);
+  if (surface.status().code() == StatusCode::kCancelled) return surface.status().WithContext("arref-icp");
   if (!surface.ok()) {  // the fit without the objects stands
     spdlog::warn("arref-icp: no expected surface in context, keeping the fit without it: {}", surface.status().ToString());
     stages->push_back("in-context-skipped");
@@ -218,24 +244,25 @@ Candidate RefineInContext(const ArrefIcpInput& in, int walk, const TargetCloud& 
   *fitted = std::make_shared<const PointCloud>(Thinned(*surface, in.params.context_points));
   stages->push_back("in-context");
   const std::optional<TargetCloud> dense = DenseTargetNear(in, **fitted, best.T_world_base);
+  if (Cancelled(in.cancel)) return CancelledIn("refit in context");
   // The surface's points weighed by how far the headset's tracking error moves them, as seen
   // from the eyes it was fused from (tracking_error.h).
   const std::vector<float> weights =
       TrackingErrorWeights(**fitted, eyes.empty() ? RobotSide::RefitEyes(walk) : eyes, in.params.tracking_error);
-  return Polish(**fitted, dense ? *dense : target, best, in.params, weights);
+  return Polish(**fitted, dense ? *dense : target, best, in.params, in.cancel, weights);
 }
 
 // Which surface explains the scene: a fused headset mesh is matched by the expected surface,
 // exact geometry (a CAD scene, a fine scan) by the exact one. The winner is refined with the exact
 // visible surface too, and whichever lies closer to the scene's tangent planes is kept.
-Candidate ExactIfCloser(const ArrefIcpInput& in, const PointCloud& expected_fine, const TargetCloud& target,
-                        const Candidate& best, std::vector<std::string>* stages) {
+Result<Candidate> ExactIfCloser(const ArrefIcpInput& in, const PointCloud& expected_fine, const TargetCloud& target,
+                                const Candidate& best, std::vector<std::string>* stages) {
   const ArrefIcpParams& p = in.params;
   // Kept by the robot when there is one: no copy per request.
   const auto exact_kept = in.robot ? in.robot->Visible(p.fine_points)
                                    : std::make_shared<const PointCloud>(Thinned(VisiblePoints(in.model_base), p.fine_points));
   const PointCloud& exact_fine = *exact_kept;
-  const Candidate exact = Polish(exact_fine, target, best, p);
+  ARREF_ASSIGN_OR_RETURN(const Candidate exact, Polish(exact_fine, target, best, p, in.cancel));
   const double d_expected = MedianPlaneDistance(expected_fine, target, best.T_world_base, 0.03, 0.5);
   const double d_exact = MedianPlaneDistance(exact_fine, target, exact.T_world_base, 0.03, 0.5);
   spdlog::debug("arref-icp: median plane distance {:.1f} mm expected surface, {:.1f} mm exact", d_expected * 1e3,
@@ -257,7 +284,7 @@ Result<std::array<std::shared_ptr<const PointCloud>, 3>> FittedModel(const Arref
   std::array<std::shared_ptr<const PointCloud>, 3> out;
   if (in.robot && in.model_expected) {  // the all-round surface, thinned once and kept by the robot
     for (std::size_t i = 0; i < counts.size(); ++i) {
-      auto kept = in.robot->Expected(in.voxel_m, -1, counts[i]);
+      auto kept = in.robot->Expected(in.voxel_m, -1, counts[i], in.cancel);
       if (!kept.ok()) return kept.status().WithContext("arref-icp");
       out[i] = *kept;
     }
@@ -272,15 +299,17 @@ Result<std::array<std::shared_ptr<const PointCloud>, 3>> FittedModel(const Arref
 
 // Every yaw round the seed, and when none fits well a grid of positions too, each given a
 // coarse 4-DoF alignment and scored.
-std::vector<Candidate> SearchPoses(const PointCloud& coarse, const TargetCloud& target, const Iso3& seed,
-                                   const ArrefIcpParams& p, RegistrationOutput* out) {
+Result<std::vector<Candidate>> SearchPoses(const PointCloud& coarse, const TargetCloud& target, const Iso3& seed,
+                                           const ArrefIcpParams& p, const CancelToken* cancel,
+                                           RegistrationOutput* out) {
   out->stages.push_back("yaw-search");
-  std::vector<Candidate> candidates = CoarseSearch(coarse, target, Hypotheses(seed, p, 0), p);
+  ARREF_ASSIGN_OR_RETURN(std::vector<Candidate> candidates,
+                         CoarseSearch(coarse, target, Hypotheses(seed, p, 0), p, cancel));
   const double best_coarse = Distinct(candidates, 1).front().score;
   if (best_coarse < p.expand_below_score && p.position_steps > 0) {
     spdlog::debug("arref-icp: best coarse score {:.2f} < {:.2f}: searching positions too", best_coarse,
                   p.expand_below_score);
-    const auto more = CoarseSearch(coarse, target, Hypotheses(seed, p, p.position_steps), p);
+    ARREF_ASSIGN_OR_RETURN(const auto more, CoarseSearch(coarse, target, Hypotheses(seed, p, p.position_steps), p, cancel));
     candidates.insert(candidates.end(), more.begin(), more.end());
     out->stages.push_back("position-search");
   }
@@ -297,9 +326,8 @@ Result<RegistrationOutput> RegisterArrefIcp(const ArrefIcpInput& in) {
     return Status::FailedPrecondition("arref-icp needs normals on model and scene points");
   if (p.yaw_hypotheses < 1 || p.height_offsets_m.empty() || p.refine_top < 1 || p.position_steps < 0)
     return Status::InvalidArgument("arref-icp: yaw hypotheses, heights and refine_top must be >= 1");
-  const auto model_or = FittedModel(in);
-  if (!model_or.ok()) return model_or.status();
-  const auto& model = *model_or;
+  if (Cancelled(in.cancel)) return CancelledIn("model preparation");
+  ARREF_ASSIGN_OR_RETURN(const auto model, FittedModel(in));
   const PointCloud& coarse = *model[0];
   const PointCloud& approach = *model[1];
   const PointCloud& fine = *model[2];
@@ -307,11 +335,15 @@ Result<RegistrationOutput> RegisterArrefIcp(const ArrefIcpInput& in) {
 
   RegistrationOutput out;
   LapTimer laps;  // each step's time goes to out.step_ms
-  const std::vector<Candidate> candidates = SearchPoses(coarse, target, in.T_world_seed, p, &out);
+  ARREF_ASSIGN_OR_RETURN(const std::vector<Candidate> candidates,
+                         SearchPoses(coarse, target, in.T_world_seed, p, in.cancel, &out));
   out.step_ms.emplace_back("pose-search", laps.Lap());
   std::vector<Candidate> refined;
-  for (const auto& c : Distinct(candidates, static_cast<std::size_t>(p.refine_top)))
-    refined.push_back(Refine(fine, target, Approach(approach, target, c, p), p, kPolishLevels));
+  for (const auto& c : Distinct(candidates, static_cast<std::size_t>(p.refine_top))) {
+    ARREF_ASSIGN_OR_RETURN(const Candidate approached, Approach(approach, target, c, p, in.cancel));
+    ARREF_ASSIGN_OR_RETURN(Candidate polished, Refine(fine, target, approached, p, kPolishLevels, in.cancel));
+    refined.push_back(std::move(polished));
+  }
   refined = Distinct(refined, 2);
   out.stages.push_back("arref-icp");
   out.step_ms.emplace_back("refine", laps.Lap());
@@ -319,16 +351,14 @@ Result<RegistrationOutput> RegisterArrefIcp(const ArrefIcpInput& in) {
     std::shared_ptr<const PointCloud> fitted = model[2];  // the surface polished last, shared not copied
     int walk = -1;
     if (in.robot && p.select_walk) {
-      auto walked = RefineForWalk(in, fine, target, refined.front(), &fitted, &walk, &out.stages);
-      if (!walked.ok()) return walked.status();
-      refined.front() = *walked;
+      ARREF_ASSIGN_OR_RETURN(refined.front(), RefineForWalk(in, fine, target, refined.front(), &fitted, &walk, &out.stages));
       out.step_ms.emplace_back("walk-choice", laps.Lap());
     }
     if (in.robot && in.scene_mesh_world && p.in_context) {
-      refined.front() = RefineInContext(in, walk, target, refined.front(), &fitted, &out.stages);
+      ARREF_ASSIGN_OR_RETURN(refined.front(), RefineInContext(in, walk, target, refined.front(), &fitted, &out.stages));
       out.step_ms.emplace_back("context", laps.Lap());
     }
-    refined.front() = ExactIfCloser(in, *fitted, target, refined.front(), &out.stages);
+    ARREF_ASSIGN_OR_RETURN(refined.front(), ExactIfCloser(in, *fitted, target, refined.front(), &out.stages));
     out.step_ms.emplace_back("surface-choice", laps.Lap());
   }
   out.T_world_base = refined.front().T_world_base;

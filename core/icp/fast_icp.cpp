@@ -5,10 +5,10 @@
 #include <tbb/parallel_reduce.h>
 
 #include <Eigen/Cholesky>
+#include <fmt/format.h>
 
 #include <cmath>
 #include <limits>
-#include <stdexcept>
 
 namespace arref {
 namespace {
@@ -154,6 +154,10 @@ IcpStats AlignFrom(const Source& source, const TargetCloud& target, const Iso3& 
   stats.T_target_source = T_target_source;
   double last_cost = -1;
   for (; stats.iterations < settings.max_iterations; ++stats.iterations) {
+    if (Cancelled(settings.cancel)) {  // one iteration is ~0.1-2 ms: polled before each
+      stats.cancelled = true;
+      break;
+    }
     const Normal eq = BuildNormalEquations(source, target, stats.T_target_source, settings, near.data());
     stats.correspondences = eq.count;
     if (eq.count < 6) break;  // too few to constrain the pose: keep the last one
@@ -187,11 +191,12 @@ IcpStats Align(const PointCloud& source, const TargetCloud& target, const Iso3& 
   return AlignFrom({source, {}}, target, T_target_source, settings, near);
 }
 
-IcpStats AlignCoarseToFine(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
-                           const std::vector<double>& distances_m, IcpSettings settings,
-                           std::span<const float> weights) {
+Result<IcpStats> AlignCoarseToFine(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
+                                   const std::vector<double>& distances_m, IcpSettings settings,
+                                   std::span<const float> weights) {
   if (!weights.empty() && weights.size() != source.size())
-    throw std::invalid_argument("AlignCoarseToFine: one weight per source point");
+    return Status::InvalidArgument(fmt::format("AlignCoarseToFine: {} weights for {} source points", weights.size(),
+                                               source.size()));
   IcpStats total;
   total.T_target_source = T_target_source;
   std::vector<MovingNearest> near(source.size());  // a level starts where the last one's searches ended
@@ -203,6 +208,10 @@ IcpStats AlignCoarseToFine(const PointCloud& source, const TargetCloud& target, 
     total.iterations += level.iterations;
     total.converged = level.converged;
     total.correspondences = level.correspondences;
+    if (level.cancelled) {
+      total.cancelled = true;
+      break;
+    }
   }
   return total;
 }

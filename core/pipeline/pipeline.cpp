@@ -64,6 +64,13 @@ Status CheckOptions(const RegistrationOptions& o) {
   return Status::Ok();
 }
 
+// Polled between the pipeline's stages; inside them the method and the expected surfaces poll
+// the token themselves (arref_icp.cpp, model_reconstruction.cpp).
+Status CheckCancel(const CancelToken* cancel, const char* before) {
+  if (Cancelled(cancel)) return Status::Cancelled(fmt::format("registration cancelled before {}", before));
+  return Status::Ok();
+}
+
 void AssignStatus(const ConfidenceThresholds& t, bool calibrated, RegistrationReport* r) {
   std::string why;
   if (r->inlier_fraction < t.ok_min_inlier_fraction)
@@ -108,7 +115,8 @@ constexpr double kMinExpectedVoxel = 0.02, kMaxExpectedVoxel = 0.15;
 
 // The robot as the headset meshes it, at the voxel of this scene; null when the mesh is too fine
 // for it to matter or too coarse to model (then the exact surface is fitted).
-Result<std::shared_ptr<const PointCloud>> ExpectedSurface(const RobotSide& robot, double voxel) {
+Result<std::shared_ptr<const PointCloud>> ExpectedSurface(const RobotSide& robot, double voxel,
+                                                          const CancelToken* cancel) {
   if (voxel < kMinExpectedVoxel) {
     spdlog::debug("scene mesh voxel {:.4f} m: fine enough to fit the exact robot surface", voxel);
     return std::shared_ptr<const PointCloud>();
@@ -118,7 +126,7 @@ Result<std::shared_ptr<const PointCloud>> ExpectedSurface(const RobotSide& robot
                  kMaxExpectedVoxel);
     return std::shared_ptr<const PointCloud>();
   }
-  return robot.Expected(voxel);
+  return robot.Expected(voxel, -1, 0, cancel);
 }
 
 Result<RegistrationReport> Register(const PointCloud& model_base, const RobotSide* robot,
@@ -135,6 +143,7 @@ Result<RegistrationReport> Register(const PointCloud& model_base, const RobotSid
   report.method = method->name;
   StageClock clock(&report.timings, progress);
 
+  ARREF_RETURN_IF_ERROR(CheckCancel(cancel, "the crop"));
   clock.Start("crop", 0.0);
   const TriangleMesh cropped = CropToSphere(scene_world, T_world_seed.translation(), options.crop_radius_m);
   report.scene_triangles = cropped.triangles.size();
@@ -157,17 +166,19 @@ Result<RegistrationReport> Register(const PointCloud& model_base, const RobotSid
   if (wants_expected)
     alongside.run([&] {
       voxel = options.arref_icp.expected_voxel_m > 0 ? options.arref_icp.expected_voxel_m : MedianEdgeLength(cropped);
-      expected = ExpectedSurface(*robot, voxel);
+      expected = ExpectedSurface(*robot, voxel, cancel);
     });
 
+  ARREF_RETURN_IF_ERROR(CheckCancel(cancel, "sampling"));
   clock.Start("sample", 0.1);
   PointCloud scene = SampleSurface(cropped, options.scene_samples, options.sample_seed);
   if (options.mls) {
+    ARREF_RETURN_IF_ERROR(CheckCancel(cancel, "MLS resampling"));
     clock.Start("mls", 0.2);
 #ifdef ARREF_WITH_PCL
     auto resampled = MlsResample(scene, *options.mls);
     if (!resampled.ok()) return resampled.status().WithContext("MLS resampling");
-    scene = std::move(*resampled);
+    scene = std::move(resampled).value();
 #else
     return Status::FailedPrecondition("MLS resampling needs arref built with ARREF_WITH_PCL");
 #endif
@@ -181,15 +192,17 @@ Result<RegistrationReport> Register(const PointCloud& model_base, const RobotSid
   report.scene_points = scene.size();
   report.model_points = model_base.size();
 
+  ARREF_RETURN_IF_ERROR(CheckCancel(cancel, "indexing"));
   clock.Start("index", 0.28);
   // One k-d tree of the scene serves the method (when it takes one) and the evaluation.
   const TargetCloud target(scene);
   if (wants_expected) {
     clock.Start("expected-surface", 0.29);  // a cache hit after the first request per voxel size
     alongside.wait();
-    if (!expected.ok()) return expected.status();
+    if (!expected.ok()) return expected.status();  // a cancel while it was made included
     if (*expected) report.stages_run.insert(report.stages_run.begin(), "expected-surface");
   }
+  ARREF_RETURN_IF_ERROR(CheckCancel(cancel, "the method"));
   clock.Start("register", 0.3);
   auto out = method->run(MethodInput{.model_base = model_base,
                                      .scene_world = scene,
@@ -211,6 +224,7 @@ Result<RegistrationReport> Register(const PointCloud& model_base, const RobotSid
   for (const auto& [step, ms] : out->step_ms) report.method_steps.push_back({step, ms});
   report.stages_run.insert(report.stages_run.end(), out->stages.begin(), out->stages.end());
 
+  ARREF_RETURN_IF_ERROR(CheckCancel(cancel, "the evaluation"));
   clock.Start("evaluate", 0.9);
   const PointIndex& scene_index = target.index();
   const bool visible_only = method->visible_model_only && model_base.has_visibility();

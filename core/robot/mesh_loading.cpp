@@ -119,8 +119,7 @@ Result<std::string> ExportFormat(const std::string& path) {
 }  // namespace
 
 Status SaveMeshFile(const TriangleMesh& mesh, const std::string& path) {
-  auto format = ExportFormat(path);
-  if (!format.ok()) return format.status();
+  ARREF_ASSIGN_OR_RETURN(const auto format, ExportFormat(path));
   // aiScene's destructor frees everything below, so all parts are allocated with new.
   aiScene scene;
   scene.mRootNode = new aiNode();
@@ -143,7 +142,7 @@ Status SaveMeshFile(const TriangleMesh& mesh, const std::string& path) {
     out->mFaces[i].mIndices = new unsigned[3]{mesh.triangles[i][0], mesh.triangles[i][1], mesh.triangles[i][2]};
   }
   Assimp::Exporter exporter;
-  if (exporter.Export(&scene, *format, path) != AI_SUCCESS)
+  if (exporter.Export(&scene, format, path) != AI_SUCCESS)
     return Status::IoError("cannot write mesh " + path + ": " + exporter.GetErrorString());
   return Status::Ok();
 }

@@ -133,9 +133,8 @@ Status RobotModel::Impl::LoadGeometry(const std::string& urdf_dir, const RobotLo
     TriangleMesh mesh;
     auto add = [&](const urdf::GeometrySharedPtr& geometry, const urdf::Pose& origin) -> Status {
       if (!geometry) return Status::Ok();
-      auto part = GeometryMesh(*geometry, name, urdf_dir, options);
-      if (!part.ok()) return part.status();
-      mesh.Append(*part, ToIso(origin));
+      ARREF_ASSIGN_OR_RETURN(const TriangleMesh part, GeometryMesh(*geometry, name, urdf_dir, options));
+      mesh.Append(part, ToIso(origin));
       return Status::Ok();
     };
     if (options.geometry == GeometryKind::kVisual) {
@@ -261,18 +260,20 @@ Result<JointValues> RobotModel::CompleteJoints(const JointValues& given) const {
 }
 
 Result<std::map<std::string, Iso3>> RobotModel::LinkPoses(const JointValues& joints) const {
-  auto complete = CompleteJoints(joints);
-  if (!complete.ok()) return complete.status();
+  ARREF_ASSIGN_OR_RETURN(const JointValues complete, CompleteJoints(joints));
   std::map<std::string, Iso3> poses;
-  impl_->AddLinkPoses(*impl_->urdf->getRoot(), Iso3::Identity(), *complete, &poses);
+  impl_->AddLinkPoses(*impl_->urdf->getRoot(), Iso3::Identity(), complete, &poses);
   return poses;
 }
 
 Result<TriangleMesh> RobotModel::PosedMesh(const JointValues& joints) const {
-  auto poses = LinkPoses(joints);
-  if (!poses.ok()) return poses.status();
+  ARREF_ASSIGN_OR_RETURN(const auto poses, LinkPoses(joints));
   TriangleMesh mesh;
-  for (const auto& [link, link_mesh] : impl_->link_meshes) mesh.Append(link_mesh, poses->at(link));
+  for (const auto& [link, link_mesh] : impl_->link_meshes) {
+    const auto pose = poses.find(link);  // every link lies on the tree from the root
+    if (pose == poses.end()) return Status::Internal("robot link '" + link + "' has no pose");
+    mesh.Append(link_mesh, pose->second);
+  }
   return mesh;
 }
 

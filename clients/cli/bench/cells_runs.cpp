@@ -109,28 +109,26 @@ Result<std::vector<Cell>> MakeCells(const RobotModel& robot, const std::vector<s
   const RegistrationOptions defaults;
   for (const auto& kind : kinds) {
     for (int i = 0; i < cells_per_kind; ++i) {
-      auto options = OptionsFor(kind, size);
-      if (!options.ok()) return options.status();
+      ARREF_ASSIGN_OR_RETURN(sim::SimOptions options, OptionsFor(kind, size));
       // One cell seed per (kind, index): the same cells at every size and in every experiment.
       const std::uint64_t seed = rng_seed * 1000 + static_cast<std::uint64_t>(i) * 17 +
                                  static_cast<std::uint64_t>(&kind - kinds.data()) * 101;
       std::mt19937_64 rng(seed);
-      options->cell.joints = RandomJoints(robot, rng);
-      options->seed_count = seeds_per_cell;
-      options->seed_noise = variation.seed_noise;
-      if (variation.walk_arc_deg > 0) options->scan.path_arc_deg = variation.walk_arc_deg;
-      if (variation.pose_jitter_m >= 0) sim::SetPoseJitter(&options->scan, variation.pose_jitter_m);
-      if (variation.walk_any_side) options->cell.base_yaw_deg = std::uniform_real_distribution<double>(-180.0, 180.0)(rng);
-      if (variation.varied_walk) VaryWalk(&options->scan, rng);
-      auto sim = sim::SimulateCell(robot, *options, seed);
+      options.cell.joints = RandomJoints(robot, rng);
+      options.seed_count = seeds_per_cell;
+      options.seed_noise = variation.seed_noise;
+      if (variation.walk_arc_deg > 0) options.scan.path_arc_deg = variation.walk_arc_deg;
+      if (variation.pose_jitter_m >= 0) sim::SetPoseJitter(&options.scan, variation.pose_jitter_m);
+      if (variation.walk_any_side) options.cell.base_yaw_deg = std::uniform_real_distribution<double>(-180.0, 180.0)(rng);
+      if (variation.varied_walk) VaryWalk(&options.scan, rng);
+      auto sim = sim::SimulateCell(robot, options, seed);
       if (!sim.ok()) return sim.status().WithContext("bench cell " + kind + " " + std::to_string(i));
       Cell cell{kind, size, i, std::move(*sim), {}, {}};
       SpatialMesh map;
       for (auto& s : cell.sim.surfaces) ARREF_RETURN_IF_ERROR(map.Upsert(s));
       cell.scene_world = map.MergedWorld();
-      auto model = RobotSide::Create(robot, cell.sim.joints, defaults.model_samples, defaults.sample_seed);
-      if (!model.ok()) return model.status();
-      cell.robot = std::move(*model);
+      ARREF_ASSIGN_OR_RETURN(cell.robot,
+                             RobotSide::Create(robot, cell.sim.joints, defaults.model_samples, defaults.sample_seed));
       spdlog::info("bench: {} cell '{}' #{}: {} triangles", size, kind, i, cell.scene_world.triangles.size());
       cells.push_back(std::move(cell));
     }

@@ -15,6 +15,7 @@
 #include <memory>
 #include <vector>
 
+#include "arref/base/cancel.h"
 #include "arref/base/geometry.h"
 #include "arref/base/status.h"
 
@@ -62,15 +63,18 @@ class ExpectedSurfaceMaker {
   Result<PointCloud> Make(const ReconstructionOptions& options, std::size_t samples) const;
   // One surface per options, each as Make gives it. An eye that several of them share (walks
   // whose azimuths lie on one lattice) is rendered once: renders are half a surface's cost.
+  // cancel is polled between renders and fusions (and inside each fusion): once cancelled, every
+  // surface not yet made is Status::Cancelled.
   std::vector<Result<PointCloud>> MakeMany(const std::vector<ReconstructionOptions>& options,
-                                           std::size_t samples) const;
+                                           std::size_t samples, const CancelToken* cancel = nullptr) const;
   // The same with the other objects the headset mapped round the robot (a table, walls,
   // clutter): they hide parts of the robot from the eyes and fuse with it, as they did in the
   // headset's mesh. They are the triangles of scene_world, with the robot at T_world_base,
   // farther than clearance_m from the robot's exact surface.
+  // cancel as MakeMany's, also between the images rendered with the objects.
   Result<PointCloud> MakeInContext(const ReconstructionOptions& options, std::size_t samples,
                                    const TriangleMesh& scene_world, const Iso3& T_world_base,
-                                   double clearance_m) const;
+                                   double clearance_m, const CancelToken* cancel = nullptr) const;
 
  private:
   struct Parts;
@@ -79,9 +83,11 @@ class ExpectedSurfaceMaker {
   explicit ExpectedSurfaceMaker(std::unique_ptr<Parts> parts);
   Rig Eyes(const ReconstructionOptions& options) const;
   View Render(const Rig& rig, std::size_t eye) const;
-  Result<TriangleMesh> Fuse(const Rig& rig, const std::vector<const View*>& robot_views) const;
-  Result<TriangleMesh> FuseInContext(const Rig& rig, const RayCaster& scene) const;
-  std::vector<View> ViewsInContext(const Rig& rig, const RayCaster& scene, const TsdfVolume& volume) const;
+  Result<TriangleMesh> Fuse(const Rig& rig, const std::vector<const View*>& robot_views,
+                            const CancelToken* cancel) const;
+  Result<TriangleMesh> FuseInContext(const Rig& rig, const RayCaster& scene, const CancelToken* cancel) const;
+  std::vector<View> ViewsInContext(const Rig& rig, const RayCaster& scene, const TsdfVolume& volume,
+                                   const CancelToken* cancel) const;
   TsdfOptions Volume(const ReconstructionOptions& options) const;
   Aabb Band(const ReconstructionOptions& options) const;
   TriangleMesh Context(const TriangleMesh& scene_world, const Iso3& T_world_base, double clearance_m) const;
@@ -89,7 +95,7 @@ class ExpectedSurfaceMaker {
   TriangleMesh RobotPart(const TriangleMesh& fused, const PointIndex* context) const;
   // The robot fused with the objects (scene holds both) and split from them (context).
   Result<PointCloud> Sample(const ReconstructionOptions& options, const RayCaster& scene,
-                            const PointIndex* context, std::size_t samples) const;
+                            const PointIndex* context, std::size_t samples, const CancelToken* cancel) const;
   Result<PointCloud> SampleFused(const ReconstructionOptions& options, Result<TriangleMesh> fused,
                                  const PointIndex* context, std::size_t samples) const;
   std::unique_ptr<Parts> parts_;

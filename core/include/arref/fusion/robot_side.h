@@ -10,6 +10,7 @@
 #include <tuple>
 #include <vector>
 
+#include "arref/base/cancel.h"
 #include "arref/base/geometry.h"
 #include "arref/base/status.h"
 #include "arref/fusion/model_reconstruction.h"
@@ -36,24 +37,30 @@ class RobotSide {
   // Cached per millimetre of voxel size and walk; thread-safe. walk -1: all round; k in
   // [0, kWalks): a 216 degree arc centred at k * 360 / kWalks degrees. thinned_to > 0: at most
   // that many of its points (Thinned), as a method fits them. The first call for a voxel size
-  // makes every walk's surface.
+  // makes every walk's surface. A cancel while they are made returns Status::Cancelled and
+  // keeps nothing: the next call makes them again.
   static constexpr int kWalks = 8;
-  Result<std::shared_ptr<const PointCloud>> Expected(double voxel_m, int walk = -1, std::size_t thinned_to = 0) const;
+  Result<std::shared_ptr<const PointCloud>> Expected(double voxel_m, int walk = -1, std::size_t thinned_to = 0,
+                                                     const CancelToken* cancel = nullptr) const;
   // The samples a person can see (VisiblePoints), Thinned; cached, thread-safe.
   std::shared_ptr<const PointCloud> Visible(std::size_t thinned_to) const;
   // The same with the objects mapped round the robot, from the headset's mesh with the robot
   // at T_world_base (ExpectedSurfaceMaker::MakeInContext). Made anew on every call.
-  // eyes_base: where the headset really was (base frame); empty: the walk's eyes.
+  // eyes_base: where the headset really was (base frame); empty: the walk's eyes. cancel is
+  // polled between images and blocks of the fusion (Status::Cancelled).
   Result<PointCloud> ExpectedInContext(double voxel_m, int walk, const TriangleMesh& scene_world,
-                                       const Iso3& T_world_base, const std::vector<Vec3>& eyes_base = {}) const;
+                                       const Iso3& T_world_base, const std::vector<Vec3>& eyes_base = {},
+                                       const CancelToken* cancel = nullptr) const;
   // The eyes ExpectedInContext fuses from when it is given none (base frame).
   static std::vector<Vec3> RefitEyes(int walk);
 
  private:
   RobotSide(TriangleMesh mesh_base, PointCloud samples, std::uint64_t seed);
   using ExpectedKey = std::tuple<long, int, std::size_t>;  // voxel in mm, walk, thinned_to
-  Result<std::shared_ptr<const PointCloud>> ExpectedLocked(const ExpectedKey& key) const;  // under mutex_
-  void MakeEveryWalk(long voxel_mm) const;  // into expected_ or failed_, under mutex_
+  Result<std::shared_ptr<const PointCloud>> ExpectedLocked(const ExpectedKey& key,
+                                                           const CancelToken* cancel) const;  // under mutex_
+  // Into expected_ or failed_, under mutex_; a cancel keeps nothing and returns Cancelled.
+  Status MakeEveryWalk(long voxel_mm, const CancelToken* cancel) const;
   Result<std::shared_ptr<const ExpectedSurfaceMaker>> Maker() const;  // under mutex_
   TriangleMesh mesh_base_;
   PointCloud samples_;

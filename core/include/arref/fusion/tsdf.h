@@ -9,6 +9,7 @@
 #include <unordered_map>
 #include <vector>
 
+#include "arref/base/cancel.h"
 #include "arref/base/geometry.h"
 #include "arref/base/status.h"
 #include "arref/fusion/raycaster.h"
@@ -58,7 +59,10 @@ class TsdfVolume {
   };
   // Fuses the images in order, bit for bit as one Integrate per image would. Each block is
   // updated by all its images in one task, while it is in cache, not once per image.
-  Status IntegrateAll(const PinholeCamera& camera, const std::vector<Image>& images);
+  // cancel is polled between images' allocations and before each block's update; once it is
+  // cancelled the volume is left part fused and Status::Cancelled returned.
+  Status IntegrateAll(const PinholeCamera& camera, const std::vector<Image>& images,
+                      const CancelToken* cancel = nullptr);
 
   // The blocks within the truncation band of an image's measured pixels and the crop, each
   // once, in the order Integrate allocates them. With `allocating`, only those it would add

@@ -8,7 +8,9 @@
 #include <span>
 #include <vector>
 
+#include "arref/base/cancel.h"
 #include "arref/base/geometry.h"
+#include "arref/base/status.h"
 #include "arref/scene/nearest_neighbor.h"
 
 namespace arref {
@@ -49,6 +51,9 @@ struct IcpSettings {
   // Near the end a level can slide ~1 mm per iteration along a valley where the cost is flat;
   // those iterations bring no fit closer (docs/engine.md, "Refinement"). 0 turns it off.
   double converged_cost_ratio = 1e-3;
+  // Polled before every iteration; once cancelled, the pose reached so far is returned with
+  // IcpStats::cancelled set. Null: never cancelled (and the result is as without the field).
+  const CancelToken* cancel = nullptr;
 };
 
 struct IcpStats {
@@ -56,6 +61,7 @@ struct IcpStats {
   int iterations = 0;
   bool converged = false;
   std::size_t correspondences = 0;  // in the last iteration
+  bool cancelled = false;  // IcpSettings::cancel stopped it: the pose is not a result
 };
 
 // Aligns source (points + normals, its own frame) to target, starting at T_target_source.
@@ -63,8 +69,10 @@ IcpStats Align(const PointCloud& source, const TargetCloud& target, const Iso3& 
                const IcpSettings& settings);
 
 // Runs Align once per correspondence distance, coarse to fine. weights: one per source point,
-// multiplying its robust weight (as TrackingErrorWeights gives them); empty: all equal.
-IcpStats AlignCoarseToFine(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
+// multiplying its robust weight (as TrackingErrorWeights gives them); empty: all equal, else
+// exactly one per source point (InvalidArgument otherwise). A cancel stops it within the running
+// level and starts no further one: the result is then ok with IcpStats::cancelled set.
+Result<IcpStats> AlignCoarseToFine(const PointCloud& source, const TargetCloud& target, const Iso3& T_target_source,
                            const std::vector<double>& distances_m, IcpSettings settings,
                            std::span<const float> weights = {});
 

@@ -160,6 +160,14 @@ Result<Cell> MakeCell(const RobotModel& robot, const std::string& kind, int inde
   }
   spdlog::info("bench: {} cell '{}' #{} ({} mesher): {} triangles", robot.name(), kind, index, sim::MesherName(mesher),
                cell.scene_world.triangles.size());
+  if (mesher == sim::Mesher::kOpen3d) {
+    const sim::DeviceVariation& d = cell.sim.device;
+    spdlog::info("bench:   device: voxel {:.3f} m, {:.0f} triangles/m^3, quantum {:.4f} m, {:.2f} m surfaces at {} times, "
+                 "errors to {:.4f} m / {:.2f} deg, {} patches to {:.2f} m, noise {:.4f} m, walk {:.0f} deg at {:.2f} m",
+                 d.voxel_m, d.triangles_per_m3, d.quantisation_m, d.surface_size_m, d.surface_updates, d.surface_error_max_m,
+                 d.surface_error_max_deg, d.missing_patches, d.patch_radius_max_m, d.depth_noise_m, d.walk_arc_deg,
+                 d.walk_distance_m);
+  }
   return cell;
 }
 

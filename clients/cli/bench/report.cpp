@@ -201,7 +201,8 @@ Status WriteRobustness(const std::string& dir, const Tables& tables, const std::
         "+-0.5 m in x, y and z; `any-yaw` as user with any yaw. Success = ADD <= 10 mm over all runs (errors "
         "count as failures); wrong OK = said OK with ADD > 20 mm.\n\n";
   MarkdownTable(md, tables.robustness, kRobustnessLabels);
-  for (const auto& n : tables.notes) md << "- " << n << "\n";
+  for (const auto& n : tables.notes)
+    if (n.rfind("robot: ", 0) != 0) md << "- " << n << "\n";  // --robot is the other experiments' robot
   if (!md) return Status::IoError("error writing " + dir + "/robustness.md");
   return Status::Ok();
 }

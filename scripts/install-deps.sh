@@ -6,7 +6,7 @@ set -euo pipefail
 PACKAGES=(
   cmake ninja-build g++ pkg-config ccache
   libeigen3-dev libspdlog-dev liburdfdom-dev libassimp-dev libnanoflann-dev libtbb-dev
-  libpcl-dev libembree-dev
+  libpcl-dev libembree-dev libopen3d-dev
   libboost-dev libprotobuf-dev protobuf-compiler libyaml-cpp-dev libsystemd-dev
   libcli11-dev nlohmann-json3-dev
   libgtest-dev libgmock-dev libbenchmark-dev

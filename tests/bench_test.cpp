@@ -3,6 +3,7 @@
 
 #include <filesystem>
 #include <fstream>
+#include <iostream>
 #include <map>
 
 #include "test_support.h"
@@ -95,6 +96,49 @@ TEST(Bench, QuickRunWritesSaneTables) {
 
   // Every run is in runs.csv: sweep 2 methods x 8 sets x 2 runs, perturbations 2 x 2 x 17, scenes 2 x 4.
   EXPECT_EQ(ReadCsv(out + "/runs.csv").size(), 32u + 68u + 8u);
+}
+
+// `arref bench --only robustness --quick`: a row per robot and mesher, per robot, per mesher and
+// per seed family; the dev split leaves the Yaskawa SIA10D out. Run from the source folder, so
+// the default robots are the built-in one and those under ../shared/robots.
+TEST(Bench, RobustnessQuickHasRowsPerRobotAndMesher) {
+  const std::string out = ::testing::TempDir() + "/arref_bench_robustness";
+  std::filesystem::remove_all(out);
+  const auto r = testing::RunCommand("cd '" + testing::SourceDir() + "' && " + std::string(ARREF_BINARY_DIR) +
+                                     "/clients/cli/arref bench --only robustness --quick --out " + out);
+  if (r.exit_code != 0 && r.err.find("Open3D missing") != std::string::npos)
+    GTEST_SKIP() << "arref was built without Open3D (libopen3d-dev): no open3d mesher to compare";
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  ASSERT_TRUE(std::filesystem::exists(out + "/robustness.md"));
+  const Table t = ReadCsv(out + "/robustness.csv");
+  std::vector<std::string> robots = {"arref_kr5_primitive"};
+  if (testing::HaveShared()) robots.insert(robots.end(), {"abb_irb2400", "kuka_kr5_arc", "motoman_mh5"});
+  else std::cerr << "../shared/robots not found at " << testing::SharedDir() << ": only the built-in robot is checked\n";
+  auto find = [&](const std::string& robot, const std::string& mesher, const std::string& seeds) {
+    for (const auto& row : t)
+      if (row.at("robot") == robot && row.at("mesher") == mesher && row.at("seeds") == seeds) return &row;
+    return static_cast<const std::map<std::string, std::string>*>(nullptr);
+  };
+  for (const auto& robot : robots) {
+    for (const char* mesher : {"own", "open3d"}) {
+      const auto* row = find(robot, mesher, "all");
+      ASSERT_NE(row, nullptr) << robot << " " << mesher;
+      EXPECT_EQ(row->at("runs"), "3") << robot << " " << mesher;  // one cell, one seed of each family
+      EXPECT_EQ(row->at("errors (segmentation)"), "0 (0)") << robot << " " << mesher;
+      EXPECT_EQ(row->at("split"), "dev");
+      EXPECT_EQ(row->at("method"), "arref-icp");
+    }
+    ASSERT_NE(find(robot, "all", "all"), nullptr) << robot;
+  }
+  for (const auto& row : t) EXPECT_EQ(row.at("robot").find("sia10d"), std::string::npos) << "held out in dev";
+  for (const char* mesher : {"own", "open3d"}) {
+    ASSERT_NE(find("all", mesher, "all"), nullptr) << mesher;
+    for (const char* family : {"user", "cube", "any-yaw"}) ASSERT_NE(find("all", mesher, family), nullptr) << family;
+  }
+  const auto* all = find("all", "all", "all");
+  ASSERT_NE(all, nullptr);
+  EXPECT_EQ(std::stoul(all->at("runs")), 6 * robots.size());
+  EXPECT_GT(Percent(all->at("ADD<=20mm")), 0.0);
 }
 
 }  // namespace

@@ -7,6 +7,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <map>
 #include <numbers>
 #include <set>
 #include <string>
@@ -499,6 +500,166 @@ TEST(CellSimulator, VendorKr5Cell) {
   const TriangleMesh fused = MergedWorld(*cell);
   const PointIndex truth_index(TruthSamplesNear(*cell, 3.5).points);
   EXPECT_LT(Percentile(DistancesTo(truth_index, fused.vertices), 0.5), cell->voxel_m);
+}
+
+// The second mesher (Open3D's TSDF, marching cubes and decimation) with a fixed device
+// variation: a mesh on the true surfaces, facing free space, nearly closed within each
+// surface, covering what the walk saw, at no more than the requested triangle density.
+DeviceVariation FixedDevice() {
+  DeviceVariation d;
+  d.voxel_m = 0.03;
+  d.triangles_per_m3 = 1000.0;
+  d.quantisation_m = 0.001;
+  d.surface_size_m = 1.5;
+  d.surface_updates = 3;
+  d.surface_error_max_m = 0.005;
+  d.surface_error_max_deg = 0.25;
+  d.missing_patches = 0;
+  d.depth_noise_m = 0.008;
+  d.walk_arc_deg = 360.0;
+  d.walk_distance_m = 2.0;
+  return d;
+}
+
+TEST(Open3dMesher, MeshLiesOnTheTruthAtTheRequestedDensity) {
+  if (!MesherAvailable(Mesher::kOpen3d)) GTEST_SKIP() << "arref_sim was built without Open3D (libopen3d-dev)";
+  SimOptions o = SmallOptions();
+  o.fusion.mesher = Mesher::kOpen3d;
+  o.fusion.device = FixedDevice();
+  auto simulated = SimulateCell(BuiltinRobot(), o, 7);
+  ASSERT_TRUE(simulated.ok()) << simulated.status().ToString();
+  const SimulatedCell& cell = *simulated;
+  EXPECT_EQ(cell.mesher, Mesher::kOpen3d);
+  EXPECT_DOUBLE_EQ(cell.voxel_m, 0.03);
+
+  // Density: no surface above its cube's budget, and the fullest (floor) ones decimated to it.
+  const double budget = 1000.0 * 1.5 * 1.5 * 1.5;
+  std::size_t fullest = 0;
+  SpatialMesh map;
+  for (const Surface& s : cell.surfaces) {
+    ASSERT_TRUE(map.Upsert(s).ok()) << s.id;
+    EXPECT_LE(static_cast<double>(s.mesh.triangles.size()), budget) << "surface " << s.id;
+    fullest = std::max(fullest, s.mesh.triangles.size());
+  }
+  RecordProperty("fullest_surface_triangles", static_cast<int>(fullest));
+  EXPECT_GT(static_cast<double>(fullest), 0.9 * budget);
+  ASSERT_GE(cell.surfaces.size(), 8u);
+
+  // On the exact geometry: vertices within the voxel of it (noise, pose errors, decimation).
+  const TriangleMesh mesh = MergedWorld(cell);
+  const PointCloud truth = TruthSamplesNear(cell, 3.5);
+  const PointIndex truth_index(truth.points);
+  const std::vector<double> d = DistancesTo(truth_index, mesh.vertices);
+  RecordProperty("median_vertex_to_truth_mm", static_cast<int>(std::lround(Percentile(d, 0.5) * 1000)));
+  EXPECT_LT(Percentile(d, 0.5), 0.5 * cell.voxel_m);
+  EXPECT_LT(Percentile(d, 0.95), 1.5 * cell.voxel_m);
+
+  // Facing free space: normals agree with the truth's outward ones.
+  int agree = 0, total = 0;
+  for (const Triangle& t : mesh.triangles) {
+    const Vec3f c = (mesh.vertices[t[0]] + mesh.vertices[t[1]] + mesh.vertices[t[2]]) / 3.0f;
+    const Vec3f n = (mesh.vertices[t[1]] - mesh.vertices[t[0]]).cross(mesh.vertices[t[2]] - mesh.vertices[t[0]]);
+    std::uint32_t i;
+    float sq;
+    truth_index.Nearest(c, &i, &sq);
+    if (sq > 0.02f * 0.02f || n.norm() == 0) continue;
+    ++total;
+    agree += n.dot(truth.normals[i]) > 0;
+  }
+  ASSERT_GT(total, 1000);
+  EXPECT_GT(static_cast<double>(agree) / total, 0.9) << agree << " of " << total;
+
+  // Closed-ish: within each surface few edges border a single triangle (the cube's cut, the
+  // edges of what was seen). Decimation collapses inner edges and keeps the border's, so the
+  // share grows with it: about 9 % here, against 40-60 % for a mesh torn into patches.
+  std::size_t edges = 0, border = 0;
+  for (const Surface& s : cell.surfaces) {
+    std::map<std::pair<std::uint32_t, std::uint32_t>, int> uses;
+    for (const Triangle& t : s.mesh.triangles)
+      for (int k = 0; k < 3; ++k) ++uses[std::minmax(t[k], t[(k + 1) % 3])];
+    edges += uses.size();
+    for (const auto& [edge, n] : uses) border += n == 1;
+  }
+  RecordProperty("border_edges_per_mille", static_cast<int>(border * 1000 / edges));
+  EXPECT_LT(static_cast<double>(border) / static_cast<double>(edges), 0.15) << border << " of " << edges;
+
+  // Coverage: the floor the 360 degree walk saw (0.8-2 m from the base, clear of the table and
+  // clutter) lies within a voxel of the mesh.
+  const PointIndex mesh_index(SampleSurface(mesh, 200000, 5).points);
+  const Iso3 T_cell_world = cell.T_world_cell.inverse();
+  const Vec3 base_cell = T_cell_world * cell.T_world_base.translation();
+  int floor_points = 0, covered = 0;
+  for (const Vec3f& p : truth.points) {
+    const Vec3 q = T_cell_world * p.cast<double>();
+    const double r = (q - base_cell).head<2>().norm();
+    if (std::abs(q.z()) > 1e-3 || r < 0.8 || r > 2.0) continue;
+    bool under_prop = false;
+    for (const Prop& prop : cell.props)
+      under_prop = under_prop || (prop.kind != "wall" && prop.kind != "floor" && q.x() > prop.bounds_cell.min.x() - 0.1 &&
+                                  q.x() < prop.bounds_cell.max.x() + 0.1 && q.y() > prop.bounds_cell.min.y() - 0.1 &&
+                                  q.y() < prop.bounds_cell.max.y() + 0.1);
+    if (under_prop) continue;
+    ++floor_points;
+    covered += mesh_index.AnyWithin(p, static_cast<float>(cell.voxel_m * cell.voxel_m));
+  }
+  ASSERT_GT(floor_points, 1000);
+  RecordProperty("floor_covered_per_mille", covered * 1000 / floor_points);
+  EXPECT_GT(static_cast<double>(covered) / floor_points, 0.9) << covered << " of " << floor_points;
+}
+
+TEST(Open3dMesher, DeviceVariationsStayInTheirRanges) {
+  for (std::uint64_t seed = 1; seed <= 200; ++seed) {
+    const DeviceVariation d = DrawDeviceVariation(seed);
+    EXPECT_GE(d.voxel_m, 0.02);
+    EXPECT_LE(d.voxel_m, 0.06);
+    EXPECT_GE(d.triangles_per_m3, 400.0);
+    EXPECT_LE(d.triangles_per_m3, 2000.0);
+    EXPECT_GE(d.surface_size_m, 1.0);
+    EXPECT_LE(d.surface_size_m, 2.0);
+    EXPECT_LE(d.surface_error_max_m, 0.01);
+    EXPECT_LE(d.surface_error_max_deg, 0.5);
+    EXPECT_GE(d.depth_noise_m, 0.004);
+    EXPECT_LE(d.depth_noise_m, 0.012);
+    EXPECT_GE(d.walk_arc_deg, 90.0);
+    EXPECT_LE(d.walk_arc_deg, 360.0);
+    EXPECT_GE(d.walk_distance_m, 1.0);
+    EXPECT_LE(d.walk_distance_m, 3.0);
+  }
+  EXPECT_NE(DrawDeviceVariation(1).voxel_m, DrawDeviceVariation(2).voxel_m);
+}
+
+TEST(CellSimulator, SeedFamiliesSpanTheirRanges) {
+  const Iso3 T_world_base = MakeYawPose(1.0, -2.0, -1.2, 0.7);
+  for (SeedFamily family : {SeedFamily::kUser, SeedFamily::kCube, SeedFamily::kAnyYaw}) {
+    SeedNoise noise;
+    noise.family = family;
+    std::mt19937_64 rng(3);
+    const auto seeds = DrawSeeds(T_world_base, noise, 2000, rng);
+    ASSERT_EQ(seeds.size(), 2000u);
+    int below = 0;
+    double max_yaw = 0;
+    for (const Iso3& s : seeds) {
+      const Vec3 d = s.translation() - T_world_base.translation();
+      below += d.z() < 0;
+      const Eigen::Matrix3d R = T_world_base.linear().transpose() * s.linear();
+      max_yaw = std::max(max_yaw, std::abs(std::atan2(R(1, 0), R(0, 0))) / kDeg);
+      EXPECT_NEAR(s.linear()(2, 2), 1.0, 1e-9) << "gravity aligned";
+      if (family == SeedFamily::kCube) {
+        EXPECT_LE(d.cwiseAbs().maxCoeff(), 0.5);
+      } else {
+        EXPECT_GE(d.head<2>().norm(), 0.1 - 1e-9);
+        EXPECT_LE(d.head<2>().norm(), 0.3 + 1e-9);
+        EXPECT_LE(std::abs(d.z()), 0.3);
+      }
+    }
+    EXPECT_GT(below, 700) << SeedFamilyName(family) << ": below the base too";
+    if (family == SeedFamily::kAnyYaw) EXPECT_GT(max_yaw, 170.0);
+    else EXPECT_LT(max_yaw, 90.0);
+  }
+  auto parsed = ParseSeedFamily("cube");
+  ASSERT_TRUE(parsed.ok());
+  EXPECT_EQ(*parsed, SeedFamily::kCube);
+  EXPECT_FALSE(ParseSeedFamily("nonsense").ok());
 }
 
 }  // namespace

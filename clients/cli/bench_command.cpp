@@ -1,6 +1,7 @@
 // `arref bench`: reproduces the paper's experiments on simulated cells with ground truth.
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <chrono>
 #include <filesystem>
 #include <sstream>
@@ -34,7 +35,15 @@ struct BenchArgs {
   double seed_max_offset = 0.0;
   double pose_jitter = -1;
   double tracking_error = -1;
-  std::string only;  // comma-separated subset of sweep, perturb, scenes
+  std::string only;  // comma-separated subset of sweep, perturb, scenes, robustness
+  std::vector<std::string> robots;  // robustness: URDFs; default builtin plus ../shared/robots
+  std::vector<std::string> meshers = {"own", "open3d"};
+  std::vector<std::string> seed_families = {"user", "cube", "any-yaw"};
+  std::string robust_methods = "arref-icp";
+  std::string split = "dev";
+  std::string heldout_robot = "sia10d";
+  int robust_cells = 4;
+  int robust_seeds = 2;
   std::string command_line;
 };
 
@@ -70,6 +79,29 @@ int Run(const BenchArgs& args) {
   config.variation.walk_arc_deg = args.walk_arc_deg;
   config.variation.pose_jitter_m = args.pose_jitter;
   config.tracking_error_m = args.tracking_error;
+  auto robust_methods = ParseMethodList(args.robust_methods, "--robust-methods");
+  if (!robust_methods.ok()) return Fail(robust_methods.status());
+  bench::RobustnessConfig& rc = config.robustness;
+  rc.methods = *robust_methods, rc.meshers = args.meshers, rc.seed_families = args.seed_families;
+  rc.split = args.split, rc.heldout_robot = args.heldout_robot, rc.cells = args.robust_cells, rc.seeds = args.robust_seeds;
+  rc.package_path = args.robot.package_path;
+  rc.robots = args.robots;
+  if (rc.robots.empty()) {
+    // The built-in robot, and every vendor package beside the checkout (when it is there).
+    rc.robots.push_back("builtin");
+    const std::filesystem::path shared = "../shared/robots";
+    std::vector<std::string> found;
+    std::error_code scan;
+    if (std::filesystem::is_directory(shared, scan)) {
+      for (const auto& package : std::filesystem::directory_iterator(shared, scan))
+        if (std::filesystem::is_directory(package.path() / "urdf", scan))
+          for (const auto& f : std::filesystem::directory_iterator(package.path() / "urdf", scan))
+            if (f.path().extension() == ".urdf") found.push_back(f.path().string());
+      if (rc.package_path.empty()) rc.package_path.push_back(shared.string());
+    }
+    std::sort(found.begin(), found.end());
+    rc.robots.insert(rc.robots.end(), found.begin(), found.end());
+  }
   std::error_code ec;
   std::filesystem::create_directories(config.out_dir, ec);
   if (ec) return Fail(Status::IoError("--out " + config.out_dir + ": " + ec.message()));
@@ -86,6 +118,9 @@ int Run(const BenchArgs& args) {
     if (auto st = bench::PerturbExperiment(*robot, config, &tables); !st.ok()) return Fail(st.WithContext("perturbations"));
   if (wanted("scenes"))
     if (auto st = bench::ScenesExperiment(*robot, config, &tables); !st.ok()) return Fail(st.WithContext("scenes"));
+  // Only when asked for: it simulates cells of every robot with both meshers (minutes).
+  if (args.only.find("robustness") != std::string::npos)
+    if (auto st = bench::RobustnessExperiment(config, &tables); !st.ok()) return Fail(st.WithContext("robustness"));
   const double minutes = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() / 60;
   tables.notes.push_back(fmt::format("{} runs in {:.1f} min with {} parallel job(s)", tables.runs.size(), minutes, config.jobs));
   if (config.quick) tables.notes.push_back("--quick: a subset (small configuration only, fewer cells, seeds and parameter sets)");
@@ -139,7 +174,28 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
                   "Scenes experiment: the head-tracking error sigma arref-icp assumes, m, with 75 deg per m as "
                   "--pose-jitter (default 0.004, 0.3 deg; 0: equal weights in its last polish)")
       ->check(CLI::Range(0.0, 0.1));
-  cmd->add_option("--only", args->only, "Run only these experiments: sweep, perturb, scenes (comma-separated)");
+  cmd->add_option("--only", args->only,
+                  "Run only these experiments: sweep, perturb, scenes, robustness (comma-separated; robustness runs "
+                  "only when named)");
+  cmd->add_option("--robots", args->robots,
+                  "Robustness: robot URDFs, comma-separated, 'builtin' for the built-in robot (default: builtin and "
+                  "every URDF under ../shared/robots/*/urdf/, which is also the default --package-path)")
+      ->delimiter(',');
+  cmd->add_option("--meshers", args->meshers, "Robustness: meshers of the headset's mesh (own, open3d)")
+      ->delimiter(',')->check(CLI::IsMember({"own", "open3d"}));
+  cmd->add_option("--seed-families", args->seed_families, "Robustness: seed families (user, cube, any-yaw, default)")
+      ->delimiter(',')->check(CLI::IsMember({"default", "user", "cube", "any-yaw"}));
+  cmd->add_option("--robust-methods", args->robust_methods, "Robustness: registration methods")->capture_default_str();
+  cmd->add_option("--split", args->split,
+                  "Robustness: dev (without --heldout-robot) or heldout (every robot; cells and seeds from a stream of "
+                  "their own: look at it once, at the end)")
+      ->check(CLI::IsMember({"dev", "heldout"}))->capture_default_str();
+  cmd->add_option("--heldout-robot", args->heldout_robot,
+                  "Robustness: the robot the dev split leaves out (part of its name or URDF path)")->capture_default_str();
+  cmd->add_option("--robust-cells", args->robust_cells, "Robustness: cells per robot and mesher (--quick: 1)")
+      ->check(CLI::Range(1, 1000))->capture_default_str();
+  cmd->add_option("--robust-seeds", args->robust_seeds, "Robustness: seeds per family and cell (--quick: 1)")
+      ->check(CLI::Range(1, 1000))->capture_default_str();
   cmd->callback([args, exit_code, cmd] {
     args->command_line = "arref bench";
     for (const auto& o : cmd->get_options())

@@ -31,6 +31,8 @@ struct SimulateArgs {
   double seed_max_offset = 0;
   double depth_noise = -1;
   double pose_jitter = -1;
+  std::string mesher = "own";
+  std::string seed_family = "default";
 };
 
 int Run(const SimulateArgs& args) {
@@ -41,7 +43,14 @@ int Run(const SimulateArgs& args) {
   auto joints = ParseJoints(args.robot.joints);
   if (!joints.ok()) return Fail(joints.status());
 
+  auto mesher = sim::ParseMesher(args.mesher);
+  if (!mesher.ok()) return Fail(mesher.status());
+  auto family = sim::ParseSeedFamily(args.seed_family);
+  if (!family.ok()) return Fail(family.status());
+
   sim::SimOptions options = args.preset == "big" ? sim::BigPreset() : sim::SmallPreset();
+  options.fusion.mesher = *mesher;
+  options.seed_noise.family = *family;
   options.cell.joints = *joints;
   options.cell.table = !args.no_table;
   options.cell.walls = !args.no_walls;
@@ -85,6 +94,24 @@ int Run(const SimulateArgs& args) {
   // Not truth: what the app logs while its wearer maps (`arref register --head-path`).
   truth["head_path"] = PositionsToJson(cell->head_path_world, *frame);
   truth["voxel_m"] = cell->voxel_m;
+  // Written only with the new options, so that existing output stays as it was.
+  if (*family != sim::SeedFamily::kDefault) truth["seed_family"] = args.seed_family;
+  if (*mesher == sim::Mesher::kOpen3d) {
+    const sim::DeviceVariation& d = cell->device;
+    truth["mesher"] = args.mesher;
+    truth["device"] = {{"voxel_m", d.voxel_m},
+                       {"triangles_per_m3", d.triangles_per_m3},
+                       {"quantisation_m", d.quantisation_m},
+                       {"surface_size_m", d.surface_size_m},
+                       {"surface_updates", d.surface_updates},
+                       {"surface_error_max_m", d.surface_error_max_m},
+                       {"surface_error_max_deg", d.surface_error_max_deg},
+                       {"missing_patches", d.missing_patches},
+                       {"patch_radius_max_m", d.patch_radius_max_m},
+                       {"depth_noise_m", d.depth_noise_m},
+                       {"walk_arc_deg", d.walk_arc_deg},
+                       {"walk_distance_m", d.walk_distance_m}};
+  }
   truth["surfaces"] = cell->surfaces.size();
   truth["triangles"] = mesh.triangles.size();
   if (auto st = WriteJsonFile(truth, args.truth_out); !st.ok()) return Fail(st);
@@ -128,6 +155,16 @@ void AddSimulateCommand(CLI::App& app, int* exit_code) {
   cmd->add_option("--seed-max-offset", args->seed_max_offset,
                   "Seeds' horizontal error uniform in a disc of this radius, m (0: user-like Gaussian)")
       ->check(CLI::Range(0.0, 3.0));
+  cmd->add_option("--mesher", args->mesher,
+                  "How the headset's mesh is made: own (arref's TSDF and surface nets, which arref-icp also predicts "
+                  "with) or open3d (Open3D's TSDF, marching cubes and decimation with a device's variations drawn per "
+                  "cell: voxel, density, quantisation, surfaces meshed at their own times with their own pose errors, "
+                  "missing patches, depth noise, walk; those override --depth-noise)")
+      ->check(CLI::IsMember({"own", "open3d"}))->capture_default_str();
+  cmd->add_option("--seed-family", args->seed_family,
+                  "Seeds: default (user-like, 0-0.3 m above the base), user (0.1-0.3 m off, +-0.3 m in height, ~15 deg), "
+                  "cube (+-0.5 m in x, y and z, ~15 deg) or any-yaw (user with any yaw)")
+      ->check(CLI::IsMember({"default", "user", "cube", "any-yaw"}))->capture_default_str();
   cmd->callback([args, exit_code] { *exit_code = Run(*args); });
 }
 

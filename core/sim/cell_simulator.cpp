@@ -11,6 +11,9 @@
 #include <tuple>
 
 #include "arref/fusion/raycaster.h"
+#include "arref/scene/sampling.h"
+#include "arref/scene/spatial_mesh.h"
+#include "open3d_mesher.h"
 #include "scene_builder.h"
 #include "arref/fusion/tsdf.h"
 
@@ -208,7 +211,212 @@ Result<TriangleMesh> ScanAndFuse(const CellScene& scene, const SimOptions& optio
   return volume.ExtractMesh();
 }
 
+
+// Random streams of their own, one per quantity (DeviceVariation) or purpose: adding a draw to
+// one leaves every other as it was, and the cell's main stream (layout, walk, seeds) untouched.
+std::mt19937_64 Stream(std::uint64_t seed, std::uint64_t purpose) { return std::mt19937_64(SplitMix64(seed ^ SplitMix64(purpose))); }
+constexpr std::uint64_t kDeviceStream = 0xDE71CE;
+
+double Uniform(std::uint64_t seed, std::uint64_t purpose, double lo, double hi) {
+  auto rng = Stream(seed, purpose);
+  return std::uniform_real_distribution<double>(lo, hi)(rng);
+}
+
+// How far the posed arm reaches horizontally from its base: the walker stays clear of it.
+Result<double> HorizontalReach(const RobotModel& robot, const JointValues& joints) {
+  auto complete = robot.CompleteJoints(joints);
+  if (!complete.ok()) return complete.status();
+  auto posed = robot.PosedMesh(*complete);
+  if (!posed.ok()) return posed.status();
+  double reach = 0;
+  for (const Vec3f& v : posed->vertices) reach = std::max(reach, static_cast<double>(v.head<2>().norm()));
+  return reach;
+}
+
+// The scan a device variation asks for.
+Result<SimOptions> WithDevice(const RobotModel& robot, SimOptions options, const DeviceVariation& device) {
+  options.scan.depth_noise_m = device.depth_noise_m;
+  options.scan.path_arc_deg = device.walk_arc_deg;
+  double reach = 0;
+  if (options.cell.robot_present) {
+    auto r = HorizontalReach(robot, options.cell.joints);
+    if (!r.ok()) return r.status();
+    reach = *r;
+  }
+  // Half a metre beyond the arm, as a person keeps from a robot; the floor is 8 m wide.
+  options.scan.path_radius_m = std::clamp(std::max(device.walk_distance_m, reach + 0.5), 0.5, 3.4);
+  return options;
+}
+
+// Dark or shiny spots return no depth: (cell-frame centre, radius). Half lie on the robot, where
+// black covers, cables and polished flanges are common, half anywhere near it.
+std::vector<std::pair<Vec3, double>> MissingPatches(const CellScene& scene, const RobotModel& robot, const SimOptions& options,
+                                                    const DeviceVariation& device, std::uint64_t seed) {
+  std::vector<std::pair<Vec3, double>> patches;
+  if (device.missing_patches <= 0) return patches;
+  auto rng = Stream(seed, 11);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  TriangleMesh robot_cell;
+  if (options.cell.robot_present)
+    if (auto posed = robot.PosedMesh(scene.joints); posed.ok()) robot_cell.Append(*posed, scene.T_cell_base);
+  const PointCloud on_robot = robot_cell.empty() ? PointCloud{} : SampleSurface(robot_cell, 512, rng());
+  const PointCloud anywhere = SampleSurface(scene.mesh, 4096, rng());
+  const Vec3 base = scene.T_cell_base.translation();
+  std::vector<Vec3> near;
+  for (const Vec3f& p : anywhere.points)
+    if ((p.cast<double>() - base).norm() < options.fusion.crop_radius_m) near.push_back(p.cast<double>());
+  for (int i = 0; i < device.missing_patches; ++i) {
+    const bool robot_part = !on_robot.points.empty() && unit(rng) < 0.5;
+    if (!robot_part && near.empty()) continue;
+    const std::size_t n = robot_part ? on_robot.points.size() : near.size();
+    const auto k = std::min(n - 1, static_cast<std::size_t>(unit(rng) * static_cast<double>(n)));
+    const Vec3 centre = robot_part ? on_robot.points[k].cast<double>() : near[k];
+    patches.push_back({centre, device.patch_radius_max_m * (0.25 + 0.75 * unit(rng))});
+  }
+  return patches;
+}
+
+// Pixels that return nothing: on a missing patch, or beyond the fusion crop (which the own
+// TSDF applies to its blocks).
+void DropPixels(RangeImage& range, const PinholeCamera& camera, const Iso3& T_cell_camera, const Vec3& base, double crop_radius_m,
+                const std::vector<std::pair<Vec3, double>>& patches) {
+  for (int v = 0; v < camera.height; ++v)
+    for (int u = 0; u < camera.width; ++u) {
+      float& r = range[static_cast<std::size_t>(v) * static_cast<std::size_t>(camera.width) + static_cast<std::size_t>(u)];
+      if (r <= 0) continue;
+      const Vec3 hit = T_cell_camera * (camera.RayDirection(u, v) * static_cast<double>(r));
+      bool drop = (hit - base).norm() > crop_radius_m;
+      for (const auto& [centre, radius] : patches) drop = drop || (hit - centre).squaredNorm() < radius * radius;
+      if (drop) r = 0.0f;
+    }
+}
+
+// A rigid error up to max_m and max_deg (uniform magnitudes, uniform directions) about `centre`.
+Iso3 SurfaceError(const DeviceVariation& device, const Vec3& centre, std::mt19937_64& rng) {
+  std::normal_distribution<double> g(0.0, 1.0);
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  const Vec3 axis = Vec3(g(rng), g(rng), g(rng)).normalized(), dir = Vec3(g(rng), g(rng), g(rng)).normalized();
+  const double angle = device.surface_error_max_deg * kDeg * unit(rng), shift = device.surface_error_max_m * unit(rng);
+  return Eigen::Translation3d(centre + shift * dir) * Eigen::AngleAxisd(angle, axis) * Eigen::Translation3d(-centre);
+}
+
+bool HasArea(const TriangleMesh& mesh) {
+  for (const Triangle& t : mesh.triangles)
+    if ((mesh.vertices[t[1]] - mesh.vertices[t[0]]).cross(mesh.vertices[t[2]] - mesh.vertices[t[0]]).squaredNorm() > 0) return true;
+  return false;
+}
+
+// The device's mesher: ray cast like ScanAndFuse, but depth that misses dark patches, fused by
+// Open3D, and cut into surface cubes that are each meshed at their own time (the spatial mapper
+// re-meshes a surface when it changes, Microsoft's "Spatial mapping" guide), moved by the head
+// pose error of that time, decimated to the device's density on their own and quantised.
+Result<std::vector<Surface>> ScanAndMeshOpen3d(const CellScene& scene, const RobotModel& robot, const SimOptions& options,
+                                               const DeviceVariation& device, const Iso3& T_world_cell, std::uint64_t rng_seed,
+                                               std::mt19937_64& rng, std::vector<Vec3>* head_path_world) {
+  const ScanOptions& scan = options.scan;
+  auto caster = RayCaster::Create(scene.mesh);
+  if (!caster.ok()) return caster.status();
+  const PinholeCamera camera = PinholeCamera::FromFov(scan.image_width, scan.image_height, scan.fov_horizontal_deg);
+  const std::vector<View> views = WalkingPath(scan, scene.T_cell_base, rng);
+  const auto patches = MissingPatches(scene, robot, options, device, rng_seed);
+  std::vector<RangeImage> ranges;
+  std::vector<Iso3> T_world_camera;
+  for (int i = 0; i < static_cast<int>(views.size()); ++i) {
+    RangeImage range = caster->Render(camera, views[i].T_cell_camera_true, scan.max_range_m);
+    AddRangeNoise(range, scan, rng_seed, i);
+    DropPixels(range, camera, views[i].T_cell_camera_true, scene.T_cell_base.translation(), options.fusion.crop_radius_m, patches);
+    ranges.push_back(std::move(range));
+    T_world_camera.push_back(T_world_cell * views[i].T_cell_camera_believed);
+    head_path_world->push_back(T_world_camera.back().translation());
+  }
+  // Update times spread over the walk's last third: the last one after the last view.
+  const int n = static_cast<int>(views.size()), updates = std::max(1, device.surface_updates);
+  std::vector<int> snapshot_after;
+  for (int k = 0; k < updates; ++k)
+    snapshot_after.push_back(static_cast<int>(std::floor((n - 1) * (2.0 / 3.0 + (k + 1) / (3.0 * updates)))));
+  const Open3dFusion fusion{.voxel_m = device.voxel_m,
+                            .truncation_m = std::max(3.0 * device.voxel_m, kNoiseSigmasInBand * device.depth_noise_m),
+                            .max_range_m = scan.max_range_m};
+  auto meshes = FuseWithOpen3d(camera, T_world_camera, ranges, fusion, snapshot_after);
+  if (!meshes.ok()) return meshes.status();
+  const double size = device.surface_size_m;
+  const int target = std::max(1, static_cast<int>(std::lround(device.triangles_per_m3 * size * size * size)));
+  std::vector<Surface> surfaces;
+  for (int k = 0; k < updates; ++k) {
+    const double time_s = (snapshot_after[static_cast<std::size_t>(k)] + 1) * kSecondsPerView;
+    for (Surface& s : SplitIntoSurfaces((*meshes)[static_cast<std::size_t>(k)], size, time_s)) {
+      const Vec3 corner = s.T_world_surface.translation();
+      std::uint64_t key = 0;
+      for (int a = 0; a < 3; ++a) key = SplitMix64(key ^ static_cast<std::uint64_t>(std::llround(corner[a] / size) + (1 << 20)));
+      auto surface_rng = Stream(rng_seed ^ key, 12);
+      if (static_cast<int>(surface_rng() % static_cast<std::uint64_t>(updates)) != k) continue;  // meshed at another time
+      const Iso3 error = SurfaceError(device, corner + Vec3::Constant(size / 2), surface_rng);
+      auto decimated = DecimateWithOpen3d(s.mesh, target);
+      if (!decimated.ok()) return decimated.status();
+      s.mesh = std::move(*decimated);
+      const float q = static_cast<float>(device.quantisation_m);
+      for (Vec3f& v : s.mesh.vertices) {
+        v = ((error * (corner + v.cast<double>())) - corner).cast<float>();
+        if (q > 0) v = (v / q).array().round().matrix() * q;
+      }
+      if (!HasArea(s.mesh)) continue;
+      s.id = surfaces.size() + 1;
+      surfaces.push_back(std::move(s));
+    }
+  }
+  spdlog::debug("sim: open3d mesher: {} views, voxel {:.3f} m, {} surfaces of {:.2f} m at {} times", n, device.voxel_m,
+                surfaces.size(), size, updates);
+  return surfaces;
+}
+
 }  // namespace
+
+const char* MesherName(Mesher mesher) { return mesher == Mesher::kOpen3d ? "open3d" : "own"; }
+
+Result<Mesher> ParseMesher(const std::string& name) {
+  if (name == "own") return Mesher::kOwn;
+  if (name == "open3d") return Mesher::kOpen3d;
+  return Status::InvalidArgument("unknown mesher '" + name + "' (own, open3d)");
+}
+
+bool MesherAvailable(Mesher mesher) { return mesher == Mesher::kOwn || Open3dAvailable(); }
+
+DeviceVariation DrawDeviceVariation(std::uint64_t rng_seed) {
+  const std::uint64_t seed = SplitMix64(rng_seed ^ kDeviceStream);
+  DeviceVariation d;
+  d.voxel_m = Uniform(seed, 1, 0.02, 0.06);
+  d.triangles_per_m3 = Uniform(seed, 2, 400.0, 2000.0);
+  // HoloLens stores positions as 16-bit normalised integers scaled to the surface (about
+  // 0.03 mm on 2 m); meshes re-exported in millimetres or compressed for the network are
+  // coarser.
+  d.quantisation_m = Uniform(seed, 3, 0.00003, 0.004);
+  d.surface_size_m = Uniform(seed, 4, 1.0, 2.0);
+  d.surface_updates = static_cast<int>(std::floor(Uniform(seed, 5, 2.0, 7.0)));
+  d.surface_error_max_m = Uniform(seed, 6, 0.0, 0.01);
+  d.surface_error_max_deg = Uniform(seed, 7, 0.0, 0.5);
+  d.missing_patches = static_cast<int>(std::floor(Uniform(seed, 8, 0.0, 7.0)));
+  d.patch_radius_max_m = Uniform(seed, 9, 0.05, 0.3);
+  d.depth_noise_m = Uniform(seed, 10, 0.004, 0.012);
+  d.walk_arc_deg = Uniform(seed, 13, 90.0, 360.0);
+  d.walk_distance_m = Uniform(seed, 14, 1.0, 3.0);
+  return d;
+}
+
+const char* SeedFamilyName(SeedFamily family) {
+  switch (family) {
+    case SeedFamily::kUser: return "user";
+    case SeedFamily::kCube: return "cube";
+    case SeedFamily::kAnyYaw: return "any-yaw";
+    case SeedFamily::kDefault: break;
+  }
+  return "default";
+}
+
+Result<SeedFamily> ParseSeedFamily(const std::string& name) {
+  for (SeedFamily f : {SeedFamily::kDefault, SeedFamily::kUser, SeedFamily::kCube, SeedFamily::kAnyYaw})
+    if (name == SeedFamilyName(f)) return f;
+  return Status::InvalidArgument("unknown seed family '" + name + "' (default, user, cube, any-yaw)");
+}
 
 void SetPoseJitter(ScanOptions* scan, double sigma_m) {
   scan->pose_jitter_m = sigma_m;
@@ -227,29 +435,53 @@ SimOptions BigPreset() {
   return o;
 }
 
-Result<SimulatedCell> SimulateCell(const RobotModel& robot, const SimOptions& options, std::uint64_t rng_seed) {
-  ARREF_RETURN_IF_ERROR(ValidateOptions(options));
+Result<SimulatedCell> SimulateCell(const RobotModel& robot, const SimOptions& requested, std::uint64_t rng_seed) {
+  ARREF_RETURN_IF_ERROR(ValidateOptions(requested));
   const auto t0 = Clock::now();
+  const Mesher mesher = requested.fusion.mesher;
+  if (!MesherAvailable(mesher))
+    return Status::FailedPrecondition("fusion.mesher = open3d: arref was built without Open3D (apt-get install "
+                                      "libopen3d-dev, then re-run cmake)");
+  SimOptions options = requested;
+  DeviceVariation device;
+  if (mesher == Mesher::kOpen3d) {
+    device = requested.fusion.device.value_or(DrawDeviceVariation(rng_seed));
+    auto varied = WithDevice(robot, requested, device);
+    if (!varied.ok()) return varied.status().WithContext("simulating a cell of '" + robot.name() + "'");
+    options = std::move(*varied);
+    ARREF_RETURN_IF_ERROR(ValidateOptions(options).WithContext("the device variation"));
+  }
   std::mt19937_64 rng(rng_seed);
   SimulatedCell cell;
+  cell.mesher = mesher;
+  cell.device = device;
   cell.T_world_cell = RandomWorldFrame(rng);
   auto scene = BuildCellScene(robot, options.cell, options.scan, rng);
   if (!scene.ok()) return scene.status().WithContext("simulating a cell of '" + robot.name() + "'");
   cell.T_world_base = cell.T_world_cell * scene->T_cell_base;
   cell.joints = scene->joints;
   cell.props = scene->props;
-  cell.voxel_m = VoxelSize(options.fusion);
-
-  auto fused = ScanAndFuse(*scene, options, cell.T_world_cell, cell.voxel_m, rng_seed, rng, &cell.head_path_world);
-  if (!fused.ok()) return fused.status().WithContext("simulating the headset's scan");
-  if (fused->empty())
+  std::size_t triangles = 0;
+  if (mesher == Mesher::kOpen3d) {
+    cell.voxel_m = device.voxel_m;
+    auto surfaces = ScanAndMeshOpen3d(*scene, robot, options, device, cell.T_world_cell, rng_seed, rng, &cell.head_path_world);
+    if (!surfaces.ok()) return surfaces.status().WithContext("simulating the headset's scan (open3d mesher)");
+    cell.surfaces = std::move(*surfaces);
+    for (const Surface& s : cell.surfaces) triangles += s.mesh.triangles.size();
+  } else {
+    cell.voxel_m = VoxelSize(options.fusion);
+    auto fused = ScanAndFuse(*scene, options, cell.T_world_cell, cell.voxel_m, rng_seed, rng, &cell.head_path_world);
+    if (!fused.ok()) return fused.status().WithContext("simulating the headset's scan");
+    triangles = fused->triangles.size();
+    cell.surfaces = SplitIntoSurfaces(*fused, options.fusion.surface_chunk_m, options.scan.views * kSecondsPerView);
+  }
+  if (triangles == 0)
     return Status::FailedPrecondition("simulated scan saw nothing within fusion.crop_radius_m = " +
                                       std::to_string(options.fusion.crop_radius_m) + " of the robot base");
-  cell.surfaces = SplitIntoSurfaces(*fused, options.fusion.surface_chunk_m, options.scan.views * kSecondsPerView);
   cell.truth_world.Append(scene->mesh, cell.T_world_cell);
   cell.seeds = DrawSeeds(cell.T_world_base, options.seed_noise, options.seed_count, rng);
-  spdlog::debug("sim: seed {}: {} triangles in {} surfaces, voxel {:.3f} m, {:.2f} s", rng_seed,
-                fused->triangles.size(), cell.surfaces.size(), cell.voxel_m, SecondsSince(t0));
+  spdlog::debug("sim: seed {}: {} triangles in {} surfaces, voxel {:.3f} m, {:.2f} s", rng_seed, triangles,
+                cell.surfaces.size(), cell.voxel_m, SecondsSince(t0));
   return cell;
 }
 
@@ -260,6 +492,21 @@ std::vector<Iso3> DrawSeeds(const Iso3& T_world_base, const SeedNoise& noise, in
   const double yaw = YawOf(T_world_base);
   std::vector<Iso3> seeds;
   std::uniform_real_distribution<double> unit(0.0, 1.0);
+  if (noise.family != SeedFamily::kDefault) {
+    std::normal_distribution<double> user_yaw(0.0, 15.0 * kDeg);
+    for (int i = 0; i < count; ++i) {
+      Vec3 d;
+      if (noise.family == SeedFamily::kCube) {
+        d = Vec3(unit(rng) - 0.5, unit(rng) - 0.5, unit(rng) - 0.5);  // a 1 m cube
+      } else {
+        const double r = 0.1 + 0.2 * unit(rng), a = 2 * std::numbers::pi * unit(rng);
+        d = Vec3(r * std::cos(a), r * std::sin(a), 0.6 * unit(rng) - 0.3);
+      }
+      const double dyaw = noise.family == SeedFamily::kAnyYaw ? std::numbers::pi * (2 * unit(rng) - 1) : user_yaw(rng);
+      seeds.push_back(MakeYawPose(base.x() + d.x(), base.y() + d.y(), base.z() + d.z(), yaw + dyaw));
+    }
+    return seeds;
+  }
   for (int i = 0; i < count; ++i) {
     double dx = horizontal(rng), dy = horizontal(rng);
     if (noise.max_horizontal_m > 0) {  // uniform in the disc: radius ~ sqrt(u)

@@ -28,6 +28,21 @@ struct CellVariation {
   double pose_jitter_m = -1;   // >= 0: the head-tracking error (sim::SetPoseJitter; default: the simulator's)
 };
 
+// The robustness experiment: robots x meshers x seed families.
+struct RobustnessConfig {
+  std::vector<std::string> robots;        // URDF paths; "builtin" for the built-in robot
+  std::vector<std::string> package_path;  // for package:// URIs
+  std::vector<std::string> meshers = {"own", "open3d"};
+  std::vector<std::string> seed_families = {"user", "cube", "any-yaw"};
+  std::vector<std::string> methods = {"arref-icp"};
+  // dev: the development split, without the held-out robot; heldout: every robot, cells and
+  // seeds from a random stream of their own (to be looked at once, at the end).
+  std::string split = "dev";
+  std::string heldout_robot = "sia10d";  // matched against the robot's name and URDF path
+  int cells = 4;  // per robot and mesher (the same cells for every mesher)
+  int seeds = 2;  // per seed family and cell
+};
+
 struct Config {
   std::vector<std::string> methods;          // swept (Tables I, II)
   std::vector<std::string> perturb_methods;  // Table III
@@ -47,6 +62,7 @@ struct Config {
   // >= 0: the head-tracking error arref-icp assumes (ArrefIcpParams::tracking_error), m, with
   // 75 degrees per metre as sim::SetPoseJitter; 0: equal weights. Default: the method's own.
   double tracking_error_m = -1;
+  RobustnessConfig robustness;
 };
 
 // A simulated cell with everything a run needs.
@@ -66,6 +82,7 @@ struct Run {
   double seed_yaw_deg = 0;        // Table III perturbation
   Vec3 seed_offset_m = Vec3::Zero();
   std::string perturbation;       // "", "none", "rotation", "translation"
+  std::string robot, mesher, seed_family;  // robustness experiment
   bool ok = false;
   std::string status;  // the result's OK / LOW_CONFIDENCE / FAILED
   std::string error;
@@ -109,13 +126,19 @@ Row Summarise(const std::vector<const Run*>& runs, std::map<std::string, std::st
 
 // The experiments: each returns its runs (every one also goes to runs.csv).
 struct Tables {
-  std::vector<Row> table1, table2, table3, scenes;
+  std::vector<Row> table1, table2, table3, scenes, robustness;
   std::vector<Run> runs;
   std::vector<std::string> notes;
 };
 Status SweepExperiment(const RobotModel& robot, const Config& config, Tables* tables);      // Tables I, II
 Status PerturbExperiment(const RobotModel& robot, const Config& config, Tables* tables);    // Table III + plots
 Status ScenesExperiment(const RobotModel& robot, const Config& config, Tables* tables);     // methods x scene kinds
+Status RobustnessExperiment(const Config& config, Tables* tables);  // robots x meshers x seed families
+
+// One bench cell of `kind` (as MakeCells makes them) simulated from `seed` by `mesher`; the
+// model side is shared when given (the same robot and joints), else built.
+Result<Cell> MakeCell(const RobotModel& robot, const std::string& kind, int index, std::uint64_t seed, sim::Mesher mesher,
+                      std::shared_ptr<const RobotSide> robot_side = nullptr);
 
 Status WriteReport(const Config& config, const Tables& tables, const std::string& command_line);
 

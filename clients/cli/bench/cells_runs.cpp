@@ -136,6 +136,39 @@ Result<std::vector<Cell>> MakeCells(const RobotModel& robot, const std::vector<s
   return cells;
 }
 
+Result<Cell> MakeCell(const RobotModel& robot, const std::string& kind, int index, std::uint64_t seed, sim::Mesher mesher,
+                      std::shared_ptr<const RobotSide> robot_side) {
+  auto options = OptionsFor(kind, "small");
+  if (!options.ok()) return options.status();
+  std::mt19937_64 rng(seed);
+  options->cell.joints = RandomJoints(robot, rng);
+  options->seed_count = 0;  // the experiment draws its seeds by family
+  options->fusion.mesher = mesher;
+  auto sim = sim::SimulateCell(robot, *options, seed);
+  if (!sim.ok()) return sim.status().WithContext("bench cell " + kind + " " + std::to_string(index) + " of " + robot.name());
+  Cell cell{kind, "small", index, std::move(*sim), {}, std::move(robot_side)};
+  SpatialMesh map;
+  for (auto& s : cell.sim.surfaces) ARREF_RETURN_IF_ERROR(map.Upsert(s));
+  cell.scene_world = map.MergedWorld();
+  if (!cell.robot) {
+    const RegistrationOptions defaults;
+    auto model = RobotSide::Create(robot, cell.sim.joints, defaults.model_samples, defaults.sample_seed);
+    if (!model.ok()) return model.status();
+    cell.robot = std::move(*model);
+  }
+  spdlog::info("bench: {} cell '{}' #{} ({} mesher): {} triangles", robot.name(), kind, index, sim::MesherName(mesher),
+               cell.scene_world.triangles.size());
+  if (mesher == sim::Mesher::kOpen3d) {
+    const sim::DeviceVariation& d = cell.sim.device;
+    spdlog::info("bench:   device: voxel {:.3f} m, {:.0f} triangles/m^3, quantum {:.4f} m, {:.2f} m surfaces at {} times, "
+                 "errors to {:.4f} m / {:.2f} deg, {} patches to {:.2f} m, noise {:.4f} m, walk {:.0f} deg at {:.2f} m",
+                 d.voxel_m, d.triangles_per_m3, d.quantisation_m, d.surface_size_m, d.surface_updates, d.surface_error_max_m,
+                 d.surface_error_max_deg, d.missing_patches, d.patch_radius_max_m, d.depth_noise_m, d.walk_arc_deg,
+                 d.walk_distance_m);
+  }
+  return cell;
+}
+
 std::vector<Run> Execute(std::vector<Job>& jobs, int parallel_jobs) {
   std::atomic<std::size_t> done = 0;
   auto one = [&](std::size_t i) {

@@ -2,11 +2,16 @@
 // the parameter sweep (Tables I and II), the seed perturbations (Table III and its figure),
 // and every method on each kind of scene (which the paper could not measure).
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <spdlog/spdlog.h>
 
 #include <cmath>
+#include <deque>
+#include <functional>
 #include <numbers>
 
+#include "arref/base/builtin.h"
+#include "arref/robot/robot_model.h"
 #include "bench.h"
 
 namespace arref::bench {
@@ -160,7 +165,136 @@ std::vector<Job> PerturbJobs(const Cell& cell, int s, const std::string& method,
   return jobs;
 }
 
+std::uint64_t Mix(std::uint64_t x) {  // SplitMix64: separate streams from one seed
+  x += 0x9E3779B97F4A7C15ull;
+  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
+  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
+  return x ^ (x >> 31);
+}
+
+struct BenchRobot {
+  std::string label;  // the robot's name
+  std::string urdf;
+  RobotModel model;
+};
+
+Result<std::vector<BenchRobot>> LoadRobots(const RobustnessConfig& rc, bool keep_heldout) {
+  std::vector<BenchRobot> robots;
+  for (const auto& urdf : rc.robots) {
+    std::string path = urdf;
+    if (path == "builtin") {
+      auto builtin = BuiltinRobotUrdf();
+      if (!builtin.ok()) return builtin.status();
+      path = *builtin;
+    }
+    RobotLoadOptions load;
+    load.package_path = rc.package_path;
+    auto model = RobotModel::Load(path, load);
+    if (!model.ok()) return model.status().WithContext("--robots " + urdf);
+    const std::string name = model->name();
+    // A package may hold the same robot twice (a URDF with package:// and one with relative paths).
+    if (std::any_of(robots.begin(), robots.end(), [&](const BenchRobot& r) { return r.label == name; })) continue;
+    const bool heldout = !rc.heldout_robot.empty() &&
+                         (name.find(rc.heldout_robot) != std::string::npos || urdf.find(rc.heldout_robot) != std::string::npos);
+    if (heldout && !keep_heldout) {
+      spdlog::info("bench: robustness, dev split: {} is held out", name);
+      continue;
+    }
+    robots.push_back({name, urdf, std::move(*model)});
+  }
+  if (robots.empty()) return Status::InvalidArgument("robustness: no robot left to measure (--robots, --heldout-robot)");
+  return robots;
+}
+
 }  // namespace
+
+Status RobustnessExperiment(const Config& config, Tables* tables) {
+  const RobustnessConfig& rc = config.robustness;
+  const bool heldout = rc.split == "heldout";
+  auto robots = LoadRobots(rc, heldout);
+  if (!robots.ok()) return robots.status();
+  std::vector<sim::Mesher> meshers;
+  for (const auto& name : rc.meshers) {
+    auto m = sim::ParseMesher(name);
+    if (!m.ok()) return m.status();
+    if (!sim::MesherAvailable(*m)) return Status::FailedPrecondition("robustness: mesher " + name + " is not built in (Open3D missing)");
+    meshers.push_back(*m);
+  }
+  std::vector<sim::SeedFamily> families;
+  for (const auto& name : rc.seed_families) {
+    auto f = sim::ParseSeedFamily(name);
+    if (!f.ok()) return f.status();
+    families.push_back(*f);
+  }
+  const int cells_per = config.quick ? 1 : rc.cells, seeds_per = config.quick ? 1 : rc.seeds;
+  // The held-out split draws from a stream of its own: none of its cells or seeds was seen in
+  // development.
+  const std::uint64_t stream = heldout ? Mix(config.rng_seed ^ 0x48454C44u) : Mix(config.rng_seed ^ 0x444556u);
+  std::deque<Cell> cells;  // stable addresses for the jobs
+  std::vector<Job> jobs;
+  for (std::size_t r = 0; r < robots->size(); ++r) {
+    const BenchRobot& robot = (*robots)[r];
+    for (int i = 0; i < cells_per; ++i) {
+      const std::string& kind = kAllKinds[static_cast<std::size_t>(i) % kAllKinds.size()];
+      // Keyed by the robot's name, not its place in --robots: a robot's cells stay the same
+      // whichever others are measured with it.
+      const std::uint64_t cell_seed = Mix(stream ^ Mix(std::hash<std::string>{}(robot.label)) ^ Mix(static_cast<std::uint64_t>(i) + 1));
+      std::shared_ptr<const RobotSide> side;
+      for (sim::Mesher mesher : meshers) {
+        auto cell = MakeCell(robot.model, kind, i, cell_seed, mesher, side);
+        if (!cell.ok()) return cell.status();
+        side = cell->robot;
+        cells.push_back(std::move(*cell));
+        const Cell& c = cells.back();
+        for (sim::SeedFamily family : families) {
+          sim::SeedNoise noise;
+          noise.family = family;
+          std::mt19937_64 seed_rng(Mix(cell_seed ^ Mix(0x5EED0000u + static_cast<std::uint64_t>(family))));
+          const std::vector<Iso3> seeds = sim::DrawSeeds(c.sim.T_world_base, noise, seeds_per, seed_rng);
+          for (const auto& method : rc.methods)
+            for (int s = 0; s < seeds_per; ++s) {
+              Job job;
+              job.cell = &c;
+              job.T_world_seed = seeds[static_cast<std::size_t>(s)];
+              job.options = BaseOptions(method, "small");  // the 2 m crop, 16,000 scene samples
+              job.run = Label("robustness", method, "small", "", c, s);
+              job.run.robot = robot.label, job.run.mesher = sim::MesherName(mesher);
+              job.run.seed_family = sim::SeedFamilyName(family);
+              job.run.params = fmt::format("{} {} {} seeds", robot.label, job.run.mesher, job.run.seed_family);
+              jobs.push_back(job);
+            }
+        }
+      }
+    }
+  }
+  spdlog::info("bench: robustness ({} split): {} robots, {} cells, {} runs", rc.split, robots->size(), cells.size(), jobs.size());
+  const std::vector<Run> runs = Execute(jobs, config.jobs);
+  for (const auto& method : rc.methods) {
+    auto add = [&](const std::string& robot, const std::string& mesher, const std::string& family) {
+      const auto selected = Select(runs, [&](const Run& r) {
+        return r.method == method && (robot == "all" || r.robot == robot) && (mesher == "all" || r.mesher == mesher) &&
+               (family == "all" || r.seed_family == family);
+      });
+      tables->robustness.push_back(Summarise(
+          selected, {{"method", method}, {"split", rc.split}, {"robot", robot}, {"mesher", mesher}, {"seeds", family}}));
+    };
+    for (const auto& robot : *robots)
+      for (const auto& mesher : rc.meshers) add(robot.label, mesher, "all");
+    for (const auto& robot : *robots) add(robot.label, "all", "all");
+    for (const auto& mesher : rc.meshers) add("all", mesher, "all");
+    for (const auto& mesher : rc.meshers)
+      for (const auto& family : rc.seed_families) add("all", mesher, family);
+    add("all", "all", "all");
+  }
+  tables->notes.push_back(fmt::format("robustness: {} split, robots {}, {} cell(s) per robot and mesher, {} seed(s) per family",
+                                      rc.split, fmt::join([&] {
+                                        std::vector<std::string> names;
+                                        for (const auto& r : *robots) names.push_back(r.label);
+                                        return names;
+                                      }(), ", "), cells_per, seeds_per));
+  Append(tables, runs);
+  return Status::Ok();
+}
 
 Status SweepExperiment(const RobotModel& robot, const Config& config, Tables* tables) {
   ARREF_RETURN_IF_ERROR(SweepSize(robot, config, "small", tables));

@@ -187,6 +187,26 @@ void ProfileTable(std::ostream& md, const Tables& tables, const std::vector<std:
   md << "\n";
 }
 
+const std::vector<std::string> kRobustnessLabels = {"method", "split", "robot", "mesher", "seeds"};
+
+Status WriteRobustness(const std::string& dir, const Tables& tables, const std::string& command_line) {
+  ARREF_RETURN_IF_ERROR(CsvTable(dir + "/robustness.csv", tables.robustness, kRobustnessLabels));
+  std::ofstream md(dir + "/robustness.md");
+  if (!md) return Status::IoError("cannot write " + dir + "/robustness.md");
+  md << "# arref bench: robustness\n\nCommand: `" << command_line << "`\n\n";
+  md << "Robots x meshers x seed families, each run in the small configuration (2 m crop, 16,000 scene samples). "
+        "Meshers: `own` is arref's TSDF and surface nets (which arref-icp also uses to predict the headset's mesh), "
+        "`open3d` Open3D's TSDF, marching cubes and decimation with a device's variations drawn per cell. Seeds: "
+        "`user` 0.1-0.3 m off horizontally and +-0.3 m in height round the base, ~15 deg yaw; `cube` uniform in "
+        "+-0.5 m in x, y and z; `any-yaw` as user with any yaw. Success = ADD <= 10 mm over all runs (errors "
+        "count as failures); wrong OK = said OK with ADD > 20 mm.\n\n";
+  MarkdownTable(md, tables.robustness, kRobustnessLabels);
+  for (const auto& n : tables.notes)
+    if (n.rfind("robot: ", 0) != 0) md << "- " << n << "\n";  // --robot is the other experiments' robot
+  if (!md) return Status::IoError("error writing " + dir + "/robustness.md");
+  return Status::Ok();
+}
+
 }  // namespace
 
 Status WriteReport(const Config& config, const Tables& tables, const std::string& command_line) {
@@ -230,6 +250,7 @@ Status WriteReport(const Config& config, const Tables& tables, const std::string
   }
   for (const auto& n : tables.notes) md << "- " << n << "\n";
   if (!md) return Status::IoError("error writing " + dir + "/results.md");
+  if (!tables.robustness.empty()) ARREF_RETURN_IF_ERROR(WriteRobustness(dir, tables, command_line));
   spdlog::info("bench: wrote {}/results.md, runs.csv, table*.csv, scenes.csv and plots", dir);
   return Status::Ok();
 }

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <cstdint>
+#include <optional>
 #include <random>
 #include <string>
 #include <vector>
@@ -54,8 +55,45 @@ struct ScanOptions {
 // any registration can come to the truth (docs/engine.md, "What limits accuracy").
 void SetPoseJitter(ScanOptions* scan, double sigma_m);
 
+// How the depth images become the headset's mesh.
+//  kOwn:    core's TSDF and surface nets (tsdf.h), one fusion, split on a fixed grid.
+//  kOpen3d: Open3D's TSDF, marching cubes and quadric decimation, with a device's variations
+//           (DeviceVariation). arref-icp predicts the headset's mesh with core's own TSDF, so
+//           a bench on kOwn meshes alone flatters it; kOpen3d shares none of that code.
+enum class Mesher { kOwn, kOpen3d };
+const char* MesherName(Mesher mesher);  // "own", "open3d"
+Result<Mesher> ParseMesher(const std::string& name);
+bool MesherAvailable(Mesher mesher);  // kOpen3d needs arref_sim built with Open3D
+
+// What differs between one headset's mesh of a cell and another's (HoloLens spatial mapping,
+// as set through MRTK's spatial awareness observer): drawn per cell by DrawDeviceVariation,
+// each quantity from its own random stream, so adding one leaves the others as they were.
+struct DeviceVariation {
+  double voxel_m = 0.03;              // TSDF voxel edge
+  double triangles_per_m3 = 1000.0;   // decimation target per m^3 of each surface cube
+  double quantisation_m = 0.001;      // vertex positions rounded to this grid in each surface's frame
+  double surface_size_m = 1.5;        // the mesh comes as cubes of this edge (world grid)
+  int surface_updates = 4;            // each surface is meshed at one of these times near the walk's end
+  double surface_error_max_m = 0.01;  // per surface: a rigid head-pose error up to this (uniform)
+  double surface_error_max_deg = 0.5;
+  int missing_patches = 3;            // dark or shiny spots that return no depth
+  double patch_radius_max_m = 0.2;    // their radius, uniform in [a quarter of this, this]
+  double depth_noise_m = 0.008;       // replaces scan.depth_noise_m
+  double walk_arc_deg = 220.0;        // replaces scan.path_arc_deg
+  double walk_distance_m = 1.9;       // replaces scan.path_radius_m (kept clear of the arm's reach)
+};
+// The ranges: voxel 2-6 cm; 400-2,000 triangles per m^3 (about MRTK's Medium to Fine levels of
+// detail; Puljiz et al. 2019 used 1,000); quantisation 0.03-4 mm; surfaces 1-2 m; 2-6 update times; errors up to
+// 0-1 cm and 0-0.5 deg; 0-6 patches of up to 5-30 cm; depth noise 4-12 mm; walks of 90-360
+// deg at 1-3 m.
+DeviceVariation DrawDeviceVariation(std::uint64_t rng_seed);
+
 // TSDF fusion of the depth images and extraction of a coarse mesh.
 struct FusionOptions {
+  Mesher mesher = Mesher::kOwn;
+  // kOpen3d: the device's variation; unset, drawn from the cell's seed (DrawDeviceVariation).
+  // triangles_per_m3, voxel_m, truncation_voxels and surface_chunk_m below are kOwn's.
+  std::optional<DeviceVariation> device;
   double triangles_per_m3 = 1000.0;  // HoloLens density setting; sets the voxel size when voxel_m == 0
   double voxel_m = 0.0;              // explicit voxel edge; 0 = derive from triangles_per_m3
   double truncation_voxels = 3.0;     // TSDF band; widened to 6 sigma of scan.depth_noise_m if that is more
@@ -63,8 +101,19 @@ struct FusionOptions {
   double crop_radius_m = 3.0;        // fuse only within this distance of the robot base
 };
 
+// Families of seeds (a user's rough placement of the seed cube at the robot base):
+//  kDefault: the simulator's own user-like seeds (the fields of SeedNoise below).
+//  kUser:    wider user-like: 0.1-0.3 m off horizontally, +-0.3 m in height round the base
+//            (below it too: the cube placed at the floor, the base on a pedestal), yaw ~15 deg.
+//  kCube:    uniform in a cube +-0.5 m round the base in x, y and z, yaw ~15 deg.
+//  kAnyYaw:  kUser's position with any yaw.
+enum class SeedFamily { kDefault, kUser, kCube, kAnyYaw };
+const char* SeedFamilyName(SeedFamily family);  // "default", "user", "cube", "any-yaw"
+Result<SeedFamily> ParseSeedFamily(const std::string& name);
+
 // A user's rough placement of the seed cube at the robot base.
 struct SeedNoise {
+  SeedFamily family = SeedFamily::kDefault;  // the other fields are kDefault's
   double horizontal_sigma_m = 0.07;  // per axis: ~0.1 m typical horizontal error
   double vertical_max_m = 0.3;       // uniform in [0, vertical_max_m] above the base
   double yaw_sigma_deg = 15.0;
@@ -102,6 +151,8 @@ struct SimulatedCell {
   // Where head tracking put the headset at each view (the poses the mesh was fused at), in
   // world: what an app can log while its wearer maps the robot.
   std::vector<Vec3> head_path_world;
+  Mesher mesher = Mesher::kOwn;
+  DeviceVariation device;             // kOpen3d: the variation this cell's mesh was made with
 };
 
 Result<SimulatedCell> SimulateCell(const RobotModel& robot, const SimOptions& options,

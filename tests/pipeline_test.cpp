@@ -77,6 +77,22 @@ TEST(RegisterScene, ArrefIcpWithRobotSideWithin10mm) {
   }
 }
 
+// Users put the cube on the floor at the robot's foot, or at its waist: seeds 0.45 m below and
+// above the base, turned 150 degrees and 0.35 m off, still find it, because the base's height
+// comes from the supports in the crop rather than from the seed.
+TEST(RegisterScene, SeedsFarBelowAndAboveTheBaseFindTheRobot) {
+  ARREF_SHARED_CELL(c);
+  for (const double dz : {-0.45, 0.45}) {
+    const Iso3 seed = c.cell.T_world_base * MakeYawPose(0.25, -0.25, dz, 2.6);
+    ASSERT_OK_AND_ASSIGN(const RegistrationReport report,
+                         RegisterScene(*c.side, c.scene_world, seed, RegistrationOptions{}));
+    const double add = AddOf(c, report.T_world_base);
+    EXPECT_LT(add, kAddGoalM) << "seed " << dz << " m from the base's height";
+    EXPECT_EQ(report.status, ResultStatus::kOk) << report.status_reason;
+    RecordProperty("add_mm_dz_" + std::to_string(dz), std::to_string(add * 1e3));
+  }
+}
+
 // The points-only overload fits the model's visible points (no expected surface: no robot).
 TEST(RegisterScene, ArrefIcpWithPointsOnlyWithin10mm) {
   ARREF_SHARED_CELL(c);

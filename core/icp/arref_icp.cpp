@@ -13,6 +13,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <limits>
 #include <memory>
 #include <numbers>
 #include <optional>
@@ -26,6 +27,7 @@
 #include "arref/fusion/robot_side.h"
 #include "arref/scene/sampling.h"
 #include "arref/scene/spatial_mesh.h"
+#include "arref/scene/supports.h"
 #include "arref/fusion/tracking_error.h"
 #include "arref/base/clock.h"
 
@@ -38,17 +40,65 @@ struct Candidate {
   int iterations = 0;
 };
 
-std::vector<Iso3> Hypotheses(const Iso3& seed, const ArrefIcpParams& p, int position_steps) {
+// The heights an upright base may stand at: on each horizontal support near the seed (floor,
+// pedestal or table top) within reach of the seed's height error, its lowest model point on it.
+std::vector<double> SupportedBaseHeights(const ArrefIcpInput& in) {
+  const PointCloud& model = in.model_base;
+  const ArrefIcpParams& p = in.params;
+  if (!p.support_search) return {};
+  const Vec3 seed = in.T_world_seed.translation();
+  // The base frame's origin sits on its mounting surface; a model with parts below it rests on
+  // its lowest point instead.
+  float z_min = 0.0f;
+  for (const Vec3f& q : model.points) z_min = std::min(z_min, q.z());
+  SupportSearch search;
+  search.centre = seed;
+  search.radius_m = 1.5 * p.seed_error_m;
+  std::vector<double> heights;
+  for (const Support& s : FindSupports(in.scene_world, search))
+    if (std::abs(s.z - seed.z()) <= p.seed_error_m + p.support_margin_m) heights.push_back(s.z - z_min);
+  spdlog::debug("arref-icp: {} supported base heights (model's lowest point {:.3f} m)", heights.size(), z_min);
+  return heights;
+}
+
+// Where the search starts in height: the supported heights, else the seed's less the offsets.
+std::vector<double> BaseHeights(const ArrefIcpInput& in, std::vector<double> heights) {
+  if (heights.empty())
+    for (double dz : in.params.height_offsets_m) heights.push_back(in.T_world_seed.translation().z() + dz);
+  return heights;
+}
+
+// A fitted base within the mesh's resolution of a support rests on it: the support's height,
+// averaged over hundreds of floor or table points, is surer than the few horizontal faces of the
+// robot itself (a small arm on a coarse mesh tilts its fit by several millimetres in height).
+Iso3 RestOnSupport(const ArrefIcpInput& in, const std::vector<double>& supported, Iso3 T_world_base,
+                   std::vector<std::string>* stages) {
+  const double tolerance = in.voxel_m > 0 ? in.voxel_m : in.params.support_margin_m / 4;
+  double best = tolerance;
+  std::optional<double> rest;
+  for (double z : supported) {
+    const double d = std::abs(z - T_world_base.translation().z());
+    if (d < best) best = d, rest = z;
+  }
+  if (!rest) return T_world_base;
+  T_world_base.translation().z() = *rest;
+  stages->push_back("rests-on-support");
+  return T_world_base;
+}
+
+std::vector<Iso3> Hypotheses(const Iso3& seed, const std::vector<double>& heights, const ArrefIcpParams& p,
+                             int position_steps) {
   std::vector<Iso3> out;
   const Vec3 c = seed.translation();
   const double yaw0 = YawOf(seed);
   for (int ix = -position_steps; ix <= position_steps; ++ix)
     for (int iy = -position_steps; iy <= position_steps; ++iy) {
       if (position_steps > 0 && ix == 0 && iy == 0) continue;  // the centre was searched already
-      for (double dz : p.height_offsets_m)
+      const double dx = ix * p.position_step_m, dy = iy * p.position_step_m;
+      if (position_steps > 0 && std::hypot(dx, dy) > p.seed_error_m + 0.5 * p.position_step_m) continue;
+      for (double z : heights)
         for (int k = 0; k < p.yaw_hypotheses; ++k)
-          out.push_back(MakeYawPose(c.x() + ix * p.position_step_m, c.y() + iy * p.position_step_m, c.z() + dz,
-                                    yaw0 + 2 * std::numbers::pi * k / p.yaw_hypotheses));
+          out.push_back(MakeYawPose(c.x() + dx, c.y() + dy, z, yaw0 + 2 * std::numbers::pi * k / p.yaw_hypotheses));
     }
   return out;
 }
@@ -299,22 +349,55 @@ Result<std::array<std::shared_ptr<const PointCloud>, 3>> FittedModel(const Arref
 
 // Every yaw round the seed, and when none fits well a grid of positions too, each given a
 // coarse 4-DoF alignment and scored.
-Result<std::vector<Candidate>> SearchPoses(const PointCloud& coarse, const TargetCloud& target, const Iso3& seed,
-                                           const ArrefIcpParams& p, const CancelToken* cancel,
-                                           RegistrationOutput* out) {
+// The refined poses of the best distinct candidates, best first.
+Result<std::vector<Candidate>> RefineBest(const std::vector<Candidate>& candidates, const PointCloud& approach,
+                                          const PointCloud& fine, const TargetCloud& target, const ArrefIcpParams& p,
+                                          const CancelToken* cancel) {
+  std::vector<Candidate> refined;
+  for (const auto& c : Distinct(candidates, static_cast<std::size_t>(p.refine_top))) {
+    ARREF_ASSIGN_OR_RETURN(const Candidate approached, Approach(approach, target, c, p, cancel));
+    ARREF_ASSIGN_OR_RETURN(Candidate polished, Refine(fine, target, approached, p, kPolishLevels, cancel));
+    refined.push_back(std::move(polished));
+  }
+  return Distinct(refined, 2);
+}
+
+// Every yaw round the seed on every base height, refined; when the seed's neighbourhood does not
+// explain the robot (a weak coarse fit, or a refined one that holds too few of its points), a grid
+// of positions over the seed's error too. Returns the refined poses, best first.
+Result<std::vector<Candidate>> SearchPoses(const ArrefIcpInput& in,
+                                           const std::array<std::shared_ptr<const PointCloud>, 3>& model,
+                                           const std::vector<double>& supported, RegistrationOutput* out,
+                                           LapTimer* laps) {
+  const ArrefIcpParams& p = in.params;
+  const PointCloud& coarse = *model[0];
+  const TargetCloud& target = in.scene_target;
+  const std::vector<double> heights = BaseHeights(in, supported);
   out->stages.push_back("yaw-search");
   ARREF_ASSIGN_OR_RETURN(std::vector<Candidate> candidates,
-                         CoarseSearch(coarse, target, Hypotheses(seed, p, 0), p, cancel));
+                         CoarseSearch(coarse, target, Hypotheses(in.T_world_seed, heights, p, 0), p, in.cancel));
   const double best_coarse = Distinct(candidates, 1).front().score;
-  if (best_coarse < p.expand_below_score && p.position_steps > 0) {
-    spdlog::debug("arref-icp: best coarse score {:.2f} < {:.2f}: searching positions too", best_coarse,
-                  p.expand_below_score);
-    ARREF_ASSIGN_OR_RETURN(const auto more, CoarseSearch(coarse, target, Hypotheses(seed, p, p.position_steps), p, cancel));
-    candidates.insert(candidates.end(), more.begin(), more.end());
-    out->stages.push_back("position-search");
+  std::vector<Candidate> refined;
+  if (best_coarse >= p.expand_below_score || p.position_steps == 0) {
+    out->step_ms.emplace_back("pose-search", laps->Lap());
+    ARREF_ASSIGN_OR_RETURN(refined, RefineBest(candidates, *model[1], *model[2], target, p, in.cancel));
+    if (refined.front().score >= p.widen_below_refined_score || p.position_steps == 0) {
+      out->hypotheses = static_cast<int>(candidates.size());
+      for (const auto& c : candidates) out->iterations += c.iterations;
+      return refined;
+    }
   }
+  spdlog::debug("arref-icp: best coarse score {:.2f}, refined {:.2f}: searching positions too", best_coarse,
+                refined.empty() ? 0.0 : refined.front().score);
+  ARREF_ASSIGN_OR_RETURN(const auto more, CoarseSearch(coarse, target,
+                                                       Hypotheses(in.T_world_seed, heights, p, p.position_steps), p,
+                                                       in.cancel));
+  candidates.insert(candidates.end(), more.begin(), more.end());
+  out->stages.push_back("position-search");
+  out->step_ms.emplace_back("pose-search", laps->Lap());
   out->hypotheses = static_cast<int>(candidates.size());
-  return candidates;
+  for (const auto& c : candidates) out->iterations += c.iterations;
+  return RefineBest(candidates, *model[1], *model[2], target, p, in.cancel);
 }
 
 }  // namespace
@@ -328,23 +411,13 @@ Result<RegistrationOutput> RegisterArrefIcp(const ArrefIcpInput& in) {
     return Status::InvalidArgument("arref-icp: yaw hypotheses, heights and refine_top must be >= 1");
   if (Cancelled(in.cancel)) return CancelledIn("model preparation");
   ARREF_ASSIGN_OR_RETURN(const auto model, FittedModel(in));
-  const PointCloud& coarse = *model[0];
-  const PointCloud& approach = *model[1];
   const PointCloud& fine = *model[2];
   const TargetCloud& target = in.scene_target;
 
   RegistrationOutput out;
   LapTimer laps;  // each step's time goes to out.step_ms
-  ARREF_ASSIGN_OR_RETURN(const std::vector<Candidate> candidates,
-                         SearchPoses(coarse, target, in.T_world_seed, p, in.cancel, &out));
-  out.step_ms.emplace_back("pose-search", laps.Lap());
-  std::vector<Candidate> refined;
-  for (const auto& c : Distinct(candidates, static_cast<std::size_t>(p.refine_top))) {
-    ARREF_ASSIGN_OR_RETURN(const Candidate approached, Approach(approach, target, c, p, in.cancel));
-    ARREF_ASSIGN_OR_RETURN(Candidate polished, Refine(fine, target, approached, p, kPolishLevels, in.cancel));
-    refined.push_back(std::move(polished));
-  }
-  refined = Distinct(refined, 2);
+  const std::vector<double> supported = SupportedBaseHeights(in);
+  ARREF_ASSIGN_OR_RETURN(std::vector<Candidate> refined, SearchPoses(in, model, supported, &out, &laps));
   out.stages.push_back("arref-icp");
   out.step_ms.emplace_back("refine", laps.Lap());
   if (in.model_expected) {
@@ -361,10 +434,10 @@ Result<RegistrationOutput> RegisterArrefIcp(const ArrefIcpInput& in) {
     ARREF_ASSIGN_OR_RETURN(refined.front(), ExactIfCloser(in, *fitted, target, refined.front(), &out.stages));
     out.step_ms.emplace_back("surface-choice", laps.Lap());
   }
-  out.T_world_base = refined.front().T_world_base;
+  out.T_world_base = p.rest_on_support ? RestOnSupport(in, supported, refined.front().T_world_base, &out.stages)
+                                       : refined.front().T_world_base;
   out.score = refined.front().score;
   out.margin = refined.size() > 1 ? refined[0].score - refined[1].score : refined[0].score;
-  for (const auto& c : candidates) out.iterations += c.iterations;
   out.iterations += refined.front().iterations;
   out.converged = true;
   return out;

@@ -3,6 +3,8 @@
 #include <spdlog/spdlog.h>
 #include <tbb/task_group.h>
 
+#include <algorithm>
+
 #include "arref/base/clock.h"
 #include "arref/fusion/robot_side.h"
 #include "arref/icp/fast_icp.h"
@@ -71,7 +73,23 @@ Status CheckCancel(const CancelToken* cancel, const char* before) {
   return Status::Ok();
 }
 
-void AssignStatus(const ConfidenceThresholds& t, bool calibrated, RegistrationReport* r) {
+// A mesh whose voxel is coarse for the robot's size: fewer than min_voxels_across_robot voxels
+// span its largest bounding-box side, so its shell hides several millimetres of pose (a small arm
+// meshed at 5 cm).
+std::string CoarseMeshReason(const ConfidenceThresholds& t, const PointCloud& model_base, double voxel_m) {
+  if (!(voxel_m > 0) || model_base.empty()) return {};
+  Aabb box;
+  for (const Vec3f& p : model_base.points) box.Extend(p);
+  const double side = (box.max - box.min).maxCoeff();
+  const double across = side / voxel_m;
+  if (across >= t.min_voxels_across_robot) return {};
+  return fmt::format("the mesh is coarse for this robot: its {:.1f} cm voxel spans the robot's {:.2f} m "
+                     "only {:.0f} times (under {:.0f}), so the pose may be off by more than a centimetre",
+                     voxel_m * 100, side, across, t.min_voxels_across_robot);
+}
+
+void AssignStatus(const ConfidenceThresholds& t, bool calibrated, const std::string& coarse_mesh,
+                  RegistrationReport* r) {
   std::string why;
   if (r->inlier_fraction < t.ok_min_inlier_fraction)
     why = fmt::format("only {:.0f} % of visible model points lie on the scene", r->inlier_fraction * 100);
@@ -81,6 +99,8 @@ void AssignStatus(const ConfidenceThresholds& t, bool calibrated, RegistrationRe
     why = "the confidence thresholds were not calibrated on this method's fits";
   else if (r->margin < t.ok_min_margin)
     why = fmt::format("ambiguous: another pose fits almost as well (margin {:.3f})", r->margin);
+  else if (!coarse_mesh.empty())
+    why = coarse_mesh;
   r->status_reason = why;
   if (why.empty())
     r->status = ResultStatus::kOk;
@@ -238,7 +258,13 @@ Result<RegistrationReport> Register(const PointCloud& model_base, const RobotSid
   report.inlier_fraction = visible_only ? fit.inlier_fraction
                                         : MeasureFit(visible, report.T_world_base, scene_index,
                                                      options.inlier_threshold_m).inlier_fraction;
-  AssignStatus(options.confidence, method->status_calibrated, &report);
+  // Where the exact surface explained the scene better than a fused shell (exact geometry, a fine
+  // scan), the mesh's edge length is no voxel and says nothing of its accuracy.
+  const bool fused = std::find(report.stages_run.begin(), report.stages_run.end(), "fitted-exact-surface") ==
+                     report.stages_run.end();
+  const double mesh_voxel = !fused ? 0.0 : voxel > 0 ? voxel : MedianEdgeLength(cropped);
+  AssignStatus(options.confidence, method->status_calibrated, CoarseMeshReason(options.confidence, model_base, mesh_voxel),
+               &report);
   clock.Stop();
   if (progress) progress("done", 1.0);
   return report;

@@ -22,11 +22,19 @@ class RobotSide;  // fusion/robot_side.h
 
 struct ArrefIcpParams {
   int yaw_hypotheses = 12;
-  // Heights of the search's starts relative to the seed.
+  // The seed's error the search covers, horizontally and in height: a user's cube lies within
+  // this of the base (on the floor at a pedestal's foot, at the robot's waist, ...).
+  double seed_error_m = 0.5;
+  // Base heights from the horizontal supports near the seed (scene/supports.h), when any lies
+  // within seed_error_m + support_margin_m of the seed's height; else these offsets from it.
+  bool support_search = true;
+  double support_margin_m = 0.1;
+  bool rest_on_support = true;     // a fit within a voxel of a support's height is set on it
   std::vector<double> height_offsets_m = {-0.15};
   double position_step_m = 0.3;    // the expanded search's grid step around the seed
-  int position_steps = 1;          // grid of (2 * steps + 1)^2 positions
+  int position_steps = 1;          // grid of (2 * steps + 1)^2 positions, within seed_error_m
   double expand_below_score = 0.35;  // widen the search when the best coarse score is lower
+  double widen_below_refined_score = 0.3;  // ... or the best refined pose's (inliers at 2 cm)
   std::size_t coarse_points = 250;
   // The refinement's 8 and 4 cm levels (arref_icp.cpp): fewer points lose accuracy (docs/engine.md).
   std::size_t approach_points = 2000;

@@ -27,6 +27,9 @@ struct ConfidenceThresholds {
   double ok_min_inlier_fraction = 0.25;  // visible model points within inlier_threshold_m of the scene
   double ok_min_margin = 0.08;           // score lead over the best distinct alternative pose
   double failed_below_inlier_fraction = 0.15;
+  // A headset mesh with fewer voxels than this across the robot's largest side is not OK: its fused
+  // shell leaves a small arm's pose uncertain by more than a centimetre (docs/robustness.md).
+  double min_voxels_across_robot = 20.0;
 };
 
 // One registry entry per value; the registry (methods.cpp) says which are built in.

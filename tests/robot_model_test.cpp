@@ -127,6 +127,38 @@ TEST(RobotModel, BadUrdfIsAClearError) {
   EXPECT_NE(missing.status().message().find("/nonexistent/robot.urdf"), std::string::npos);
 }
 
+// A headset mesh saved and loaded again is the same mesh; PLY polygons are split into fans and a
+// face naming a vertex the file does not have is a clear error, never a crash (assimp's own
+// post-processing aborts on such faces).
+TEST(MeshFile, PlyRoundTripPolygonsAndBadFaces) {
+  const testing::ScopedTempDir tmp;
+  TriangleMesh m;
+  m.vertices = {{0, 0, 0}, {1, 0, 0}, {1, 1, 0.5f}, {0, 1, 0.25f}};
+  m.triangles = {{0, 1, 2}, {0, 2, 3}};
+  const std::string saved = tmp.path() + "/two.ply";
+  ASSERT_TRUE(SaveMeshFile(m, saved).ok());
+  ASSERT_OK_AND_ASSIGN(const TriangleMesh back, LoadMeshFile(saved));
+  ASSERT_EQ(back.triangles.size(), 2u);
+  EXPECT_NEAR(back.SurfaceArea(), m.SurfaceArea(), 1e-6);
+
+  const auto write = [&](const std::string& name, const std::string& faces, int face_count) {
+    std::ofstream(tmp.path() + "/" + name) << "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\n"
+                                              "property float y\nproperty float z\nelement face "
+                                           << face_count
+                                           << "\nproperty list uchar int vertex_index\nend_header\n"
+                                              "0 0 0\n1 0 0\n1 1 0\n0 1 0\n"
+                                           << faces;
+    return tmp.path() + "/" + name;
+  };
+  ASSERT_OK_AND_ASSIGN(const TriangleMesh quad, LoadMeshFile(write("quad.ply", "4 0 1 2 3\n", 1)));
+  EXPECT_EQ(quad.triangles.size(), 2u);
+  EXPECT_NEAR(quad.SurfaceArea(), 1.0, 1e-6);
+  const auto bad = LoadMeshFile(write("bad.ply", "3 0 1 2\n3 0 2 9\n", 2));
+  ASSERT_FALSE(bad.ok());
+  EXPECT_EQ(bad.status().code(), StatusCode::kIoError);
+  EXPECT_NE(bad.status().message().find("vertex 9"), std::string::npos) << bad.status().ToString();
+}
+
 TEST(Kr5Package, Tool0AtZeroJoints) {
   ARREF_REQUIRE_SHARED();
   const RobotModel robot = LoadOrDie(Kr5PackageDir() + "/urdf/kr5_arc.urdf",

@@ -1,4 +1,5 @@
 // Mesh files (assimp) and URDF mesh URI resolution.
+#include <fmt/format.h>
 #include <assimp/Exporter.hpp>
 #include <assimp/Importer.hpp>
 #include <assimp/config.h>
@@ -6,6 +7,7 @@
 #include <assimp/scene.h>
 
 #include <cstdlib>
+#include <cctype>
 #include <filesystem>
 #include <sstream>
 
@@ -56,7 +58,10 @@ Result<std::string> ResolvePackageUri(const std::string& uri, const std::vector<
   return Status::NotFound(message);
 }
 
-void AppendNode(const aiScene& scene, const aiNode& node, const aiMatrix4x4& T_parent, TriangleMesh* out) {
+// Appends a node's meshes (and its children's) in the root's frame. Polygons are split into fans
+// and points and lines dropped; a face that names a vertex the mesh does not have is an error
+// (assimp's binary PLY reader misreads some valid files that way, see LoadMeshFile).
+Status AppendNode(const aiScene& scene, const aiNode& node, const aiMatrix4x4& T_parent, TriangleMesh* out) {
   const aiMatrix4x4 T = T_parent * node.mTransformation;
   for (unsigned i = 0; i < node.mNumMeshes; ++i) {
     const aiMesh& mesh = *scene.mMeshes[node.mMeshes[i]];
@@ -67,11 +72,22 @@ void AppendNode(const aiScene& scene, const aiNode& node, const aiMatrix4x4& T_p
     }
     for (unsigned f = 0; f < mesh.mNumFaces; ++f) {
       const aiFace& face = mesh.mFaces[f];
-      if (face.mNumIndices != 3) continue;  // points and lines carry no surface
-      out->triangles.push_back({offset + face.mIndices[0], offset + face.mIndices[1], offset + face.mIndices[2]});
+      for (unsigned k = 0; k < face.mNumIndices; ++k)
+        if (face.mIndices[k] >= mesh.mNumVertices)
+          return Status::IoError(fmt::format("face {} names vertex {} of {}", f, face.mIndices[k], mesh.mNumVertices));
+      for (unsigned k = 2; k < face.mNumIndices; ++k)  // points and lines carry no surface
+        out->triangles.push_back({offset + face.mIndices[0], offset + face.mIndices[k - 1], offset + face.mIndices[k]});
     }
   }
-  for (unsigned c = 0; c < node.mNumChildren; ++c) AppendNode(scene, *node.mChildren[c], T, out);
+  for (unsigned c = 0; c < node.mNumChildren; ++c)
+    ARREF_RETURN_IF_ERROR(AppendNode(scene, *node.mChildren[c], T, out));
+  return Status::Ok();
+}
+
+bool IsPly(const std::string& path) {
+  std::string ext = fs::path(path).extension().string();
+  for (char& c : ext) c = static_cast<char>(std::tolower(static_cast<unsigned char>(c)));
+  return ext == ".ply";
 }
 
 }  // namespace
@@ -92,12 +108,17 @@ Result<TriangleMesh> LoadMeshFile(const std::string& path) {
   // COLLADA's <up_axis> must not rotate the geometry (rviz does the same).
   importer.SetPropertyBool(AI_CONFIG_IMPORT_COLLADA_IGNORE_UP_DIRECTION, true);
   importer.SetPropertyInteger(AI_CONFIG_PP_SBP_REMOVE, aiPrimitiveType_POINT | aiPrimitiveType_LINE);
-  const aiScene* scene = importer.ReadFile(
-      path, aiProcess_Triangulate | aiProcess_JoinIdenticalVertices | aiProcess_SortByPType);
+  // Assimp 5.2's binary PLY reader misreads some valid files (a few faces get wrong vertex
+  // counts), and its post-processing then aborts or crashes on them. A headset mesh in PLY is
+  // read without post-processing: faces are checked and split into triangles here.
+  const unsigned steps =
+      IsPly(path) ? 0u : unsigned{aiProcess_Triangulate | aiProcess_JoinIdenticalVertices | aiProcess_SortByPType};
+  const aiScene* scene = importer.ReadFile(path, steps);
   if (scene == nullptr || scene->mRootNode == nullptr)
     return Status::IoError("cannot read mesh " + path + ": " + importer.GetErrorString());
   TriangleMesh mesh;
-  AppendNode(*scene, *scene->mRootNode, aiMatrix4x4(), &mesh);
+  if (Status st = AppendNode(*scene, *scene->mRootNode, aiMatrix4x4(), &mesh); !st.ok())
+    return st.WithContext("mesh " + path + " is malformed");
   if (mesh.triangles.empty()) return Status::IoError("mesh " + path + " has no triangles");
   return mesh;
 }
@@ -110,7 +131,7 @@ namespace {
 // Assimp's exporter id for a file name, by extension.
 Result<std::string> ExportFormat(const std::string& path) {
   const std::string ext = fs::path(path).extension().string();
-  if (ext == ".ply") return std::string("plyb");
+  if (ext == ".ply") return std::string("ply");  // ASCII: assimp reads its own binary PLY back wrong at times
   if (ext == ".stl") return std::string("stlb");
   if (ext == ".obj") return std::string("obj");
   return Status::InvalidArgument("cannot write mesh '" + path + "': use a .ply, .stl or .obj file name");

@@ -28,6 +28,7 @@
 #include "arref/pipeline/pipeline.h"
 #include "arref/robot/robot_model.h"
 #include "arref/base/status.h"
+#include "memory_budget.h"
 
 namespace arref::server {
 
@@ -52,6 +53,7 @@ struct Job {
   // runner passes it to the pipeline, which returns Status::Cancelled.
   CancelToken cancel;
   std::atomic<bool> finished{false};  // its outcome is being delivered: too late to cancel
+  MemoryBudget::Reservation memory;   // its charge on the server's budget, until it is destroyed
 
   // Called from worker threads (or the thread that cancels a queued job). on_done is called
   // exactly once per accepted job.

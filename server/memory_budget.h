@@ -58,7 +58,8 @@ std::size_t MeshBytes(std::size_t vertices, std::size_t triangles);
 inline std::size_t MeshBytes(const TriangleMesh& mesh) { return MeshBytes(mesh.vertices.size(), mesh.triangles.size()); }
 
 // A job's charge: its scene snapshot, the crop and samples it makes and the method's working
-// set. An upper estimate, calibrated on arref-icp and pcl-icp runs (docs/architecture.md).
+// set. An upper estimate (memory_budget.cpp says what it was measured against). The robot
+// models and their cache (server.model_cache_entries) are the server's fixed part.
 std::size_t JobBytes(std::size_t scene_bytes, std::size_t scene_samples);
 
 // A received frame's charge: the bytes themselves and the parsed message, whose packed varints

@@ -59,9 +59,9 @@ struct Server::Impl {
   explicit Impl(ServerConfig c, std::unique_ptr<RobotRegistry> r)
       : config(std::move(c)),
         robots(std::move(r)),
+        memory(config.limits.memory_budget_bytes),
         jobs(static_cast<std::size_t>(config.workers), config.queue_size,
              [this](Job& job) { return RunRegistrationJob(job, *robots); }),
-        memory(config.limits.memory_budget_bytes),
         ctx{config,
             *robots,
             jobs,
@@ -108,8 +108,8 @@ struct Server::Impl {
   std::unique_ptr<RobotRegistry> robots;
   SubscriberHub hub;
   std::atomic<bool> shutting_down{false};
+  MemoryBudget memory;  // outlives everything that holds a reservation (jobs, sessions)
   JobScheduler jobs;
-  MemoryBudget memory;  // before anything that holds a reservation is destroyed
   ServerContext ctx;
   // Declared after everything sessions refer to, so handlers die first.
   net::io_context ioc;

@@ -193,8 +193,8 @@ Status ValidateServerConfig(const ServerConfig& c) {
   if (c.limits.max_pending_connections < 1 || c.limits.max_connections_per_peer < 1)
     return Status::InvalidArgument("limits.max_pending_connections and max_connections_per_peer must be >= 1");
   if (c.limits.memory_budget_bytes < (64u << 20))
-    return Status::InvalidArgument(fmt::format("limits.memory_budget_bytes ({}) must be >= 64 MiB (67108864): a job "
-                                               "alone is charged over 32 MiB", c.limits.memory_budget_bytes));
+    return Status::InvalidArgument(fmt::format("limits.memory_budget_bytes ({}) must be >= 64 MiB (67108864)",
+                                               c.limits.memory_budget_bytes));
   if (c.registration.model_samples < 3) return Status::InvalidArgument("registration.model_samples must be >= 3");
   const TrackingError& e = c.registration.arref_icp.tracking_error;
   if (!(e.position_m >= 0 && e.position_m <= 1) || !(e.orientation_deg >= 0 && e.orientation_deg <= 30))

@@ -249,8 +249,10 @@ int RunSoak(const HeadsetScene& scene, const Args& a) {
                            "{:.0f} .. {:.0f} ms\n", Percentile(per_session_median, 0), Percentile(per_session_median, 1),
                            Percentile(per_session_p95, 0), Percentile(per_session_p95, 1));
   std::cout << fmt::format("good sessions failed: {}\n", failed);
+  std::size_t shown = 0;  // the first few are enough; the counts by code follow
   for (const auto& h : headsets)
-    for (const auto& f : h.failures) std::cout << "  " << f << "\n";
+    for (const auto& f : h.failures)
+      if (shown++ < 5) std::cout << "  " << f << "\n";
   std::cout << "errors the server sent (and failed good sessions), by code:\n";
   for (const auto& [code, n] : errors) std::cout << fmt::format("  {:>6}  {}\n", n, code);
   return failed == 0 ? 0 : 1;

@@ -11,6 +11,7 @@ PACKAGES=(
   libcli11-dev nlohmann-json3-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   gnuplot-nox
+  libstb-dev python3-protobuf python3-numpy python3-open3d python3-pytest
 )
 
 missing=()

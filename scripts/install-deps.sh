@@ -12,6 +12,7 @@ PACKAGES=(
   libgtest-dev libgmock-dev libbenchmark-dev
   gnuplot-nox
   libstb-dev python3-protobuf python3-numpy python3-open3d python3-pytest
+  ros-core python3-rospy python3-tf2-ros python3-yaml
 )
 
 missing=()

@@ -52,8 +52,16 @@ double Percent(const std::string& s) { return std::stod(s.substr(0, s.find(' '))
 TEST(Bench, QuickRunWritesSaneTables) {
   const testing::ScopedTempDir tmp;
   const std::string out = tmp.path() + "/bench";
-  const auto r = testing::RunCommand(std::string(ARREF_BINARY_DIR) + "/clients/cli/arref bench --quick --jobs 2 --out " + out);
+  const auto r = testing::RunCommand(std::string(ARREF_BINARY_DIR) + "/clients/cli/arref bench --quick --jobs 2 --out " + out +
+                                     " --images " + out + "/img");
   ASSERT_EQ(r.exit_code, 0) << r.err;
+  // --images: a picture of each scene cell's first result per method (the quick run: one cell of
+  // each of two kinds).
+  for (const char* method : {"pcl-icp", "super4pcs"})
+    for (const char* kind : {"default", "near-table"}) {
+      const std::string png = out + "/img/scenes_" + method + "_" + kind + "_0.png";
+      EXPECT_TRUE(std::filesystem::exists(png) && std::filesystem::file_size(png) > 1000u) << png;
+    }
   for (const char* f : {"results.md", "runs.csv", "table1.csv", "table2.csv", "table3.csv", "scenes.csv", "rotation.dat",
                         "rotation.gp", "translation.dat"})
     EXPECT_TRUE(std::filesystem::exists(out + "/" + f)) << f;

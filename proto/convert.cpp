@@ -61,6 +61,8 @@ pb::ServerMessage ResultMessage(const ResultHeader& header, const std::optional<
   r->set_session_id(header.session_id);
   r->set_queue_ms(header.queue_ms);
   r->set_server_ms(header.server_ms);
+  r->set_scene_time_unix_s(header.scene_time_unix_s);
+  r->set_scene_headset_time_s(header.scene_headset_time_s);
   if (report) {
     FillReport(*report, frame, r);
   } else {

@@ -31,6 +31,8 @@ struct ResultHeader {
   std::uint64_t session_id = 0;
   double queue_ms = 0.0;
   double server_ms = 0.0;
+  double scene_time_unix_s = 0.0;     // when the data was taken (server wall clock)
+  double scene_headset_time_s = 0.0;  // its newest surface's headset timestamp
 };
 
 // The Result message of a job: the report when there is one, else a CANCELLED (status code

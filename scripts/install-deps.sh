@@ -11,6 +11,8 @@ PACKAGES=(
   libcli11-dev nlohmann-json3-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   gnuplot-nox
+  libstb-dev python3-protobuf python3-numpy python3-open3d python3-pytest
+  ros-core python3-rospy python3-tf2-ros python3-yaml
 )
 
 missing=()

@@ -49,6 +49,8 @@ struct Job {
   RegistrationOptions options;
   FrameConvention result_frame = FrameConvention::kUnity;
   SteadyClock::time_point accepted_at = SteadyClock::now();
+  double scene_time_unix_s = 0.0;     // when scene_world was copied (Result.scene_time_unix_s)
+  double scene_headset_time_s = 0.0;  // its newest surface's headset timestamp
   // The one way to stop a job: Cancel messages, a closed session and shutdown cancel it; the
   // runner passes it to the pipeline, which returns Status::Cancelled.
   CancelToken cancel;

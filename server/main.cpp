@@ -24,6 +24,7 @@ struct Overrides {
   std::optional<double> idle_timeout_s;
   std::optional<double> shutdown_grace_s;
   std::optional<std::string> log_level;
+  std::optional<std::string> record_dir;
   bool check_config = false;
 };
 
@@ -40,6 +41,9 @@ void AddFlags(CLI::App& app, Overrides& o) {
   app.add_option("--shutdown-grace", o.shutdown_grace_s, "On SIGTERM, running jobs may finish within this, s");
   app.add_option("--log-level", o.log_level, "trace, debug, info, warn, error, off")
       ->check(CLI::IsMember({"trace", "debug", "info", "warn", "error", "critical", "off"}));
+  app.add_option("--record-dir", o.record_dir,
+                 "Record every session to a file in this folder (its client messages and their arrival times, "
+                 "never the auth token; `arref replay FILE` re-runs one)");
   app.add_flag("--check-config", o.check_config, "Load the config and robots, then exit");
 }
 
@@ -53,6 +57,7 @@ void Apply(const Overrides& o, ServerConfig& c) {
   if (o.idle_timeout_s) c.idle_timeout_s = *o.idle_timeout_s;
   if (o.shutdown_grace_s) c.shutdown_grace_s = *o.shutdown_grace_s;
   if (o.log_level) c.log_level = *o.log_level;
+  if (o.record_dir) c.record_dir = *o.record_dir;
 }
 
 }  // namespace

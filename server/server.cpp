@@ -12,6 +12,7 @@
 #include <thread>
 
 #include "arref/base/clock.h"
+#include "registration_job.h"
 #include "robot_registry.h"
 #include "session.h"
 #include "systemd_notify.h"
@@ -23,6 +24,8 @@ constexpr auto kCancelGrace = std::chrono::seconds(10);   // after cancelling ov
 constexpr auto kFlushGrace = std::chrono::seconds(5);     // for sessions to send their last bytes
 
 Status CancelledWhileRunning() { return Status::Cancelled("cancelled while running"); }
+
+}  // namespace
 
 JobOutcome RunRegistrationJob(Job& job, RobotRegistry& robots) {
   JobOutcome out;
@@ -52,8 +55,6 @@ JobOutcome RunRegistrationJob(Job& job, RobotRegistry& robots) {
   out.report = std::move(*report);
   return finish(Status::Ok());
 }
-
-}  // namespace
 
 struct Server::Impl {
   explicit Impl(ServerConfig c, std::unique_ptr<RobotRegistry> r)

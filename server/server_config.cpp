@@ -66,7 +66,7 @@ std::string Resolve(const std::string& path, const std::string& base_dir) {
 Status ReadServer(const YAML::Node& n, ServerConfig& c) {
   ARREF_RETURN_IF_ERROR(CheckKeys(n, "server", {"address", "port", "io_threads", "workers", "queue_size",
                                                 "idle_timeout_s", "hello_timeout_s", "frame_timeout_s", "send_timeout_s", "shutdown_grace_s",
-                                                "auth_token", "log_level"}));
+                                                "auth_token", "log_level", "record_dir"}));
   Read(n, "address", c.address);
   Read(n, "port", c.port);
   Read(n, "io_threads", c.io_threads);
@@ -79,6 +79,7 @@ Status ReadServer(const YAML::Node& n, ServerConfig& c) {
   Read(n, "shutdown_grace_s", c.shutdown_grace_s);
   Read(n, "auth_token", c.auth_token);
   Read(n, "log_level", c.log_level);
+  Read(n, "record_dir", c.record_dir);
   return Status::Ok();
 }
 
@@ -202,6 +203,26 @@ Status ValidateServerConfig(const ServerConfig& c) {
         "registration.tracking_error_m ({}) must be in [0, 1] and tracking_error_deg ({}) in [0, 30]", e.position_m,
         e.orientation_deg));
   return Status::Ok();
+}
+
+std::string RegistrationYaml(const ServerConfig& c) {
+  const RegistrationOptions& o = c.registration;
+  YAML::Emitter out;
+  out.SetDoublePrecision(17);  // doubles read back exactly
+  out << YAML::BeginMap << YAML::Key << "registration" << YAML::Value << YAML::BeginMap;
+  out << YAML::Key << "method" << YAML::Value << MethodName(o.method);
+  out << YAML::Key << "crop_radius_m" << YAML::Value << o.crop_radius_m;
+  out << YAML::Key << "scene_samples" << YAML::Value << o.scene_samples;
+  out << YAML::Key << "model_samples" << YAML::Value << o.model_samples;
+  out << YAML::Key << "icp_max_correspondence_m" << YAML::Value << o.icp.max_correspondence_m;
+  out << YAML::Key << "icp_max_iterations" << YAML::Value << o.icp.max_iterations;
+  out << YAML::Key << "inlier_threshold_m" << YAML::Value << o.inlier_threshold_m;
+  out << YAML::Key << "sample_seed" << YAML::Value << o.sample_seed;
+  out << YAML::Key << "model_cache_entries" << YAML::Value << c.model_cache_entries;
+  out << YAML::Key << "tracking_error_m" << YAML::Value << o.arref_icp.tracking_error.position_m;
+  out << YAML::Key << "tracking_error_deg" << YAML::Value << o.arref_icp.tracking_error.orientation_deg;
+  out << YAML::EndMap << YAML::EndMap;
+  return std::string(out.c_str()) + "\n";
 }
 
 Result<ServerConfig> ParseServerConfig(const std::string& yaml_text, const std::string& base_dir) {

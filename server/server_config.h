@@ -49,6 +49,9 @@ struct ServerConfig {
   double shutdown_grace_s = 30.0;  // running jobs may finish within this on SIGTERM
   std::string auth_token;          // empty: no token required
   std::string log_level = "info";
+  // Non-empty: every session is recorded to a file in this folder (wire/recording.h), its
+  // client messages with their arrival times; never the auth token.
+  std::string record_dir;
   ServerLimits limits;
   RegistrationOptions registration;
   std::size_t model_cache_entries = 32;
@@ -63,5 +66,9 @@ Result<ServerConfig> LoadServerConfig(const std::string& path);
 // The built-in default: config/arref-server.yaml found via FindConfigFile.
 Result<ServerConfig> LoadDefaultServerConfig();
 Status ValidateServerConfig(const ServerConfig& config);
+
+// The "registration" section of a config with this config's values (what a recording carries,
+// so that a replay registers as the server did). ParseServerConfig reads it back.
+std::string RegistrationYaml(const ServerConfig& config);
 
 }  // namespace arref::server

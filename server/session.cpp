@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <filesystem>
 #include <new>
 
 #include "arref/base/clock.h"
@@ -38,6 +39,7 @@ Session::Session(tcp::socket socket, ServerContext& context, std::uint64_t id)
   boost::system::error_code ec;
   const auto endpoint = socket_.remote_endpoint(ec);
   peer_ = ec ? "?" : endpoint.address().to_string() + ":" + std::to_string(endpoint.port());
+  connected_unix_s_ = std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
 }
 
 Session::~Session() { spdlog::debug("session {} destroyed", id_); }
@@ -188,6 +190,7 @@ bool Session::ProcessFrames() {
                    fmt::format("a frame of {} bytes does not parse as arref.v1.ClientMessage", f.body_bytes));
       return false;
     }
+    Record(message);  // a Hello is recorded by OnHello, once accepted
     Handle(message);
     frame_memory_.Release();
   }
@@ -255,6 +258,11 @@ void Session::OnHello(const pb::Hello& m) {
   pb::ServerMessage reply;
   FillHelloReply(reply.mutable_hello_reply());
   Send(reply);
+  if (!ctx_.config.record_dir.empty()) {
+    pb::ClientMessage hello;
+    *hello.mutable_hello() = m;
+    StartRecording(reply.hello_reply(), hello);
+  }
   if (ctx_.shutting_down) NotifyShutdown(ctx_.config.shutdown_grace_s);
 }
 
@@ -498,6 +506,10 @@ std::shared_ptr<Job> Session::MakeJob(const pb::RegisterRequest& m) {
   (*job)->memory = std::move(*memory);
   (*job)->session_id = id_;
   (*job)->scene_world = spatial_.MergedWorld();
+  (*job)->scene_time_unix_s =
+      std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+  for (const auto& [sid, surface] : spatial_.surfaces())
+    (*job)->scene_headset_time_s = std::max((*job)->scene_headset_time_s, surface.timestamp_s);
   AttachCallbacks(**job);
   return std::move(*job);
 }
@@ -520,7 +532,9 @@ void Session::AttachCallbacks(Job& job) {
                                     .robot_id = done.robot_id,
                                     .session_id = done.session_id,
                                     .queue_ms = outcome.queue_ms,
-                                    .server_ms = MsSince(done.accepted_at)};
+                                    .server_ms = MsSince(done.accepted_at),
+                                    .scene_time_unix_s = done.scene_time_unix_s,
+                                    .scene_headset_time_s = done.scene_headset_time_s};
     const auto frame =
         wire::SharedFrame(wire::ResultMessage(header, outcome.report, outcome.status, done.result_frame));
     spdlog::info("session {}: request {} {} ({:.0f} ms queued, {:.0f} ms running){}", done.session_id, done.request_id,
@@ -529,6 +543,41 @@ void Session::AttachCallbacks(Job& job) {
     if (auto self = weak.lock()) self->DeliverResult(done.request_id, frame);
     if (outcome.report) hub->Publish(done.robot_id, frame, done.session_id);
   };
+}
+
+// ---------------------------------------------------------------- recording
+
+void Session::StartRecording(const pb::HelloReply& reply, const pb::ClientMessage& hello) {
+  namespace fs = std::filesystem;
+  const auto start_ms = static_cast<long long>(connected_unix_s_ * 1000);
+  const fs::path path =
+      fs::path(ctx_.config.record_dir) / fmt::format("arref-session-{}-{}.arrec", start_ms, id_);
+  std::error_code ec;
+  fs::create_directories(ctx_.config.record_dir, ec);
+  pb::RecordingHeader header;
+  header.set_server_version(ctx_.server_version);
+  header.set_protocol_version(wire::kProtocolVersion);
+  header.set_session_id(id_);
+  header.set_start_unix_s(connected_unix_s_);
+  header.set_client_name(client_name_);
+  *header.mutable_robots() = reply.robots();
+  header.set_registration_yaml(RegistrationYaml(ctx_.config));
+  auto writer = wire::RecordingWriter::Create(path.string(), std::move(header));
+  if (!writer.ok()) {
+    spdlog::warn("session {}: not recorded: {}", id_, writer.status().ToString());
+    return;
+  }
+  recorder_ = std::move(*writer);
+  spdlog::info("session {}: recording to {}", id_, recorder_->path());
+  Record(hello);
+}
+
+void Session::Record(const pb::ClientMessage& message) {
+  if (!recorder_) return;
+  if (Status s = recorder_->Append(MsSince(connected_at_) / 1000.0, message); !s.ok()) {
+    spdlog::warn("session {}: recording stopped: {}", id_, s.ToString());
+    recorder_.reset();
+  }
 }
 
 // ---------------------------------------------------------------- writing

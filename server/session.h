@@ -22,9 +22,11 @@
 #include <vector>
 
 #include "arref/scene/spatial_mesh.h"
+#include "arref/base/clock.h"
 #include "frame_decoder.h"
 #include "job_scheduler.h"
 #include "memory_budget.h"
+#include "recording.h"
 #include "request_builder.h"
 #include "robot_registry.h"
 #include "server_config.h"
@@ -107,6 +109,11 @@ class Session : public std::enable_shared_from_this<Session> {
   std::shared_ptr<Job> MakeJob(const wire::pb::RegisterRequest& m);
   void AttachCallbacks(Job& job);
 
+  // Recording (config record_dir): opened once Hello is accepted; a failure stops only the
+  // recording, never the session.
+  void StartRecording(const wire::pb::HelloReply& reply, const wire::pb::ClientMessage& hello);
+  void Record(const wire::pb::ClientMessage& message);
+
   // Writing.
   void Send(const wire::pb::ServerMessage& message);
   void SendError(wire::pb::ErrorCode code, const std::string& message, std::uint64_t request_id = 0,
@@ -151,6 +158,10 @@ class Session : public std::enable_shared_from_this<Session> {
   std::map<std::string, SessionJoints> joints_;  // latest JointState by robot id; "" applies to every robot
   std::set<std::uint64_t> in_flight_;
   bool shutdown_notified_ = false;
+
+  SteadyClock::time_point connected_at_ = SteadyClock::now();
+  double connected_unix_s_ = 0.0;
+  std::unique_ptr<wire::RecordingWriter> recorder_;
 };
 
 }  // namespace arref::server

@@ -52,8 +52,19 @@ double Percent(const std::string& s) { return std::stod(s.substr(0, s.find(' '))
 TEST(Bench, QuickRunWritesSaneTables) {
   const testing::ScopedTempDir tmp;
   const std::string out = tmp.path() + "/bench";
-  const auto r = testing::RunCommand(std::string(ARREF_BINARY_DIR) + "/clients/cli/arref bench --quick --jobs 2 --out " + out);
+  const auto r = testing::RunCommand(std::string(ARREF_BINARY_DIR) + "/clients/cli/arref bench --quick --jobs 2 --out " + out +
+                                     " --images " + out + "/img");
   ASSERT_EQ(r.exit_code, 0) << r.err;
+  // --images: a picture of each scene cell's first result per method (the quick run: one cell of
+  // each of two kinds), where the run produced a pose (a global method may find none).
+  int pictures = 0;
+  for (const auto& run : ReadCsv(out + "/runs.csv")) {
+    if (run.at("experiment") != "scenes" || run.at("seed") != "0") continue;
+    const std::string png = out + "/img/scenes_" + run.at("method") + "_" + run.at("scene") + "_" + run.at("cell") + ".png";
+    EXPECT_EQ(std::filesystem::exists(png), run.at("ok") == "1") << png << " (" << run.at("error") << ")";
+    pictures += std::filesystem::exists(png) && std::filesystem::file_size(png) > 1000u;
+  }
+  EXPECT_GE(pictures, 2);  // pcl-icp always gives a pose
   for (const char* f : {"results.md", "runs.csv", "table1.csv", "table2.csv", "table3.csv", "scenes.csv", "rotation.dat",
                         "rotation.gp", "translation.dat"})
     EXPECT_TRUE(std::filesystem::exists(out + "/" + f)) << f;

@@ -59,6 +59,32 @@ TEST(ServerConfig, HardeningLimitsAreReadAndChecked) {
   EXPECT_LE(shipped->limits.memory_budget_bytes, std::size_t{1} << 30);
 }
 
+// What a recording carries so that a replay registers as the server did.
+TEST(ServerConfig, RegistrationYamlReadsBackTheSameSettings) {
+  auto config = ParseServerConfig(
+      "server: {record_dir: /var/lib/arref/recordings}\n"
+      "registration: {method: pcl-icp, crop_radius_m: 1.7, scene_samples: 9000, model_samples: 4000,\n"
+      "  icp_max_correspondence_m: 0.07, icp_max_iterations: 80, inlier_threshold_m: 0.015, sample_seed: 9,\n"
+      "  model_cache_entries: 5, tracking_error_m: 0.0031, tracking_error_deg: 0.7}\n", "/tmp");
+  ASSERT_TRUE(config.ok()) << config.status().ToString();
+  EXPECT_EQ(config->record_dir, "/var/lib/arref/recordings");
+  auto back = ParseServerConfig(RegistrationYaml(*config), "/tmp");
+  ASSERT_TRUE(back.ok()) << back.status().ToString() << "\n" << RegistrationYaml(*config);
+  const RegistrationOptions& a = config->registration;
+  const RegistrationOptions& b = back->registration;
+  EXPECT_EQ(MethodName(b.method), "pcl-icp");
+  EXPECT_EQ(b.crop_radius_m, a.crop_radius_m);
+  EXPECT_EQ(b.scene_samples, 9000u);
+  EXPECT_EQ(b.model_samples, 4000u);
+  EXPECT_EQ(b.icp.max_correspondence_m, a.icp.max_correspondence_m);
+  EXPECT_EQ(b.icp.max_iterations, 80);
+  EXPECT_EQ(b.inlier_threshold_m, a.inlier_threshold_m);
+  EXPECT_EQ(b.sample_seed, 9u);
+  EXPECT_EQ(back->model_cache_entries, 5u);
+  EXPECT_EQ(b.arref_icp.tracking_error.position_m, a.arref_icp.tracking_error.position_m);
+  EXPECT_EQ(b.arref_icp.tracking_error.orientation_deg, a.arref_icp.tracking_error.orientation_deg);
+}
+
 TEST(ServerConfig, BadValuesAreNamed) {
   struct Case {
     std::string yaml;

@@ -35,6 +35,7 @@ struct BenchArgs {
   double seed_max_offset = 0.0;
   double pose_jitter = -1;
   double tracking_error = -1;
+  std::string images;  // scenes experiment: pictures of results go here
   std::string only;  // comma-separated subset of sweep, perturb, scenes, robustness
   std::vector<std::string> robots;  // robustness: URDFs; default builtin plus ../shared/robots
   std::vector<std::string> meshers = {"own", "open3d"};
@@ -68,6 +69,7 @@ int Run(const BenchArgs& args) {
   if (!scenes.ok()) return Fail(scenes.status());
   config.methods = *methods, config.perturb_methods = *perturb, config.scene_methods = *scenes;
   config.out_dir = args.out, config.quick = args.quick, config.big = !args.no_big;
+  config.images_dir = args.images;
   config.jobs = args.jobs, config.rng_seed = args.rng_seed;
   config.scene_size = args.scene_size, config.scene_cells = args.scene_cells, config.scene_seeds = args.scene_seeds;
   if (!args.scene_kinds.empty()) config.scene_kinds = args.scene_kinds;
@@ -105,6 +107,8 @@ int Run(const BenchArgs& args) {
   std::error_code ec;
   std::filesystem::create_directories(config.out_dir, ec);
   if (ec) return Fail(Status::IoError("--out " + config.out_dir + ": " + ec.message()));
+  if (!config.images_dir.empty()) std::filesystem::create_directories(config.images_dir, ec);
+  if (ec) return Fail(Status::IoError("--images " + config.images_dir + ": " + ec.message()));
   auto robot = LoadRobot(args.robot);
   if (!robot.ok()) return Fail(robot.status());
   auto wanted = [&](const char* name) { return args.only.empty() || args.only.find(name) != std::string::npos; };
@@ -174,6 +178,9 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
                   "Scenes experiment: the head-tracking error sigma arref-icp assumes, m, with 75 deg per m as "
                   "--pose-jitter (default 0.004, 0.3 deg; 0: equal weights in its last polish)")
       ->check(CLI::Range(0.0, 0.1));
+  cmd->add_option("--images", args->images,
+                  "Scenes experiment: write a PNG of each cell's first result per method into this folder "
+                  "(arref register --image's picture)");
   cmd->add_option("--only", args->only,
                   "Run only these experiments: sweep, perturb, scenes, robustness (comma-separated; robustness runs "
                   "only when named)");

@@ -9,5 +9,6 @@ void AddSimulateCommand(CLI::App& app, int* exit_code);
 void AddRegisterCommand(CLI::App& app, int* exit_code);
 void AddDemoCommand(CLI::App& app, int* exit_code);
 void AddBenchCommand(CLI::App& app, int* exit_code);
+void AddReplayCommand(CLI::App& app, int* exit_code);
 
 }  // namespace arref::cli

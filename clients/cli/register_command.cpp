@@ -11,6 +11,7 @@
 #include "cli_common.h"
 #include "commands.h"
 #include "global_options.h"
+#include "result_image.h"
 
 namespace arref::cli {
 namespace {
@@ -31,6 +32,9 @@ struct RegisterArgs {
   double mls_upsampling_step = 0.005;
   int mls_order = 2;
   bool json = false;
+  std::string image;         // PNG of the result
+  int image_width = 1280;    // both views side by side, each 4:3
+  std::string export_robot;  // the posed robot in the scene's frame
 };
 
 struct Inputs {
@@ -140,6 +144,32 @@ void PrintHuman(const nlohmann::json& j) {
                 j["translation_error_m"].get<double>() * 1e3, j["rotation_error_deg"].get<double>());
 }
 
+// --image and --export-robot: the posed robot at the result, drawn over the scene or written out.
+Status WriteResultFiles(const RegisterArgs& args, const RobotModel& robot, const JointValues& joints,
+                        const TriangleMesh& scene_world, const RegistrationReport& report, const Iso3& T_world_seed,
+                        FrameConvention frame) {
+  if (args.image.empty() && args.export_robot.empty()) return Status::Ok();
+  ARREF_ASSIGN_OR_RETURN(const JointValues complete, robot.CompleteJoints(joints));
+  ARREF_ASSIGN_OR_RETURN(TriangleMesh posed, robot.PosedMesh(complete));
+  if (!args.image.empty()) {
+    const ResultPicture picture{.scene_world = scene_world, .robot_base = posed, .T_world_base = report.T_world_base,
+                                .T_world_seed = T_world_seed};
+    const int view_width = args.image_width / 2;
+    auto image = RenderResult(picture, ResultImageOptions{.view_width = view_width, .view_height = view_width * 3 / 4,
+                                                          .crop_radius_m = args.options.crop_radius_m});
+    if (!image.ok()) return image.status().WithContext("--image");
+    ARREF_RETURN_IF_ERROR(WritePng(*image, args.image));
+    spdlog::info("wrote {} ({} x {} px)", args.image, image->width, image->height);
+  }
+  if (!args.export_robot.empty()) {
+    posed.Transform(report.T_world_base);
+    MeshFromRos(posed, frame);  // the scene file's own convention
+    if (Status s = SaveMeshFile(posed, args.export_robot); !s.ok()) return s.WithContext("--export-robot");
+    spdlog::info("wrote the posed robot to {} ({} frame)", args.export_robot, FrameConventionName(frame));
+  }
+  return Status::Ok();
+}
+
 ProgressFn TerminalProgress() {
   if (!StderrIsTerminal()) return {};
   return [](std::string_view stage, double fraction) {
@@ -175,6 +205,8 @@ int Run(const RegisterArgs& args) {
   options.head_path_world = inputs->head_path_world;
   auto report = RegisterScene(**model, *scene, inputs->T_world_seed, options, TerminalProgress());
   if (!report.ok()) return Fail(report.status());
+  if (Status s = WriteResultFiles(args, *robot, inputs->joints, *scene, *report, inputs->T_world_seed, *frame); !s.ok())
+    return Fail(s);
   nlohmann::json j = ReportJson(*report, *frame);
   if (inputs->truth) {
     const PoseError e = ComparePoses(report->T_world_base, inputs->T_world_base_true, (*model)->samples().points);
@@ -248,6 +280,14 @@ void AddRegisterCommand(CLI::App& app, int* exit_code) {
   cmd->add_option("--mls-upsampling-step", args->mls_upsampling_step, "MLS upsampling step, m");
   AddGlobalMethodOptions(*cmd, o);
   cmd->add_flag("--json", args->json, "Print the result as JSON on stdout");
+  cmd->add_option("--image", args->image,
+                  "Write a PNG of the result: the cropped scene and the registered robot (orange) from the front and "
+                  "from above, the seed cube (magenta), the scene coloured by distance to the robot");
+  cmd->add_option("--image-width", args->image_width, "Width of the --image in pixels (two 4:3 views side by side)")
+      ->capture_default_str()
+      ->check(CLI::Range(64, 8192));
+  cmd->add_option("--export-robot", args->export_robot,
+                  "Write the posed robot at the result in the scene's frame (.ply, .stl or .obj), for MeshLab or Blender");
   cmd->callback([args, exit_code] { *exit_code = Run(*args); });
 }
 

@@ -16,6 +16,7 @@
 #include <cmath>
 #include <cstring>
 #include <nlohmann/json.hpp>
+#include <map>
 #include <thread>
 
 #include "arref/base/builtin.h"
@@ -457,6 +458,131 @@ HeadsetRun RunHeadset(const HeadsetScene& scene, const HeadsetOptions& options) 
   HeadsetRun run;
   run.status = Status::Internal("not run");
   Runner(scene, options, &run).Run();
+  return run;
+}
+
+namespace {
+
+// One recording sent to a server; answers are read while it waits for the next message's time.
+class RecordingSender {
+ public:
+  RecordingSender(const wire::Recording& recording, const HeadsetOptions& options, Pace pace, HeadsetRun* out)
+      : rec_(recording), o_(options), pace_(pace), out_(out) {}
+
+  void Run() {
+    auto conn = Connection::Connect(o_.host, o_.port, std::min(o_.timeout_s, 30.0));
+    if (!conn.ok()) {
+      Fail(conn.status());
+      return;
+    }
+    conn_ = std::move(*conn);
+    if (!Hello()) return;
+    const auto start = Clock::now();
+    for (const auto& recorded : rec_.messages) {
+      if (recorded.message().has_hello()) continue;
+      const auto due = start + std::chrono::duration_cast<Clock::duration>(
+                                   std::chrono::duration<double>(recorded.t_s() - hello_t_s_));
+      if (pace_ == Pace::kOriginal && !ReadUntil(due)) return;
+      if (recorded.message().has_register_request()) {
+        const std::uint64_t rid = recorded.message().register_request().request_id();
+        pending_.push_back(rid);
+        sent_at_[rid] = Clock::now();
+      }
+      if (Status s = conn_.Send(recorded.message()); !s.ok()) {
+        out_->server_closed = true;
+        Fail(s.WithContext("sending the recording"));
+        return;
+      }
+    }
+    const auto deadline = Clock::now() + std::chrono::duration<double>(o_.timeout_s);
+    while (!pending_.empty())
+      if (!ReadOne(std::chrono::duration<double>(deadline - Clock::now()).count())) return;
+    out_->status = Status::Ok();
+    for (const auto& r : out_->registrations)
+      if (r.result.status() != pb::RESULT_STATUS_OK && r.result.status() != pb::RESULT_STATUS_LOW_CONFIDENCE)
+        out_->status = Status(StatusCode::kFailedPrecondition,
+                              fmt::format("request {}: {}", r.request_id, pb::ResultStatus_Name(r.result.status())));
+  }
+
+ private:
+  bool Fail(Status s) {
+    out_->status = std::move(s);
+    return false;
+  }
+
+  bool Hello() {
+    for (const auto& recorded : rec_.messages)
+      if (recorded.message().has_hello()) {
+        hello_t_s_ = recorded.t_s();
+        break;
+      }
+    pb::ClientMessage m;
+    m.mutable_hello()->set_protocol_version(rec_.header.protocol_version());
+    m.mutable_hello()->set_client_name(o_.client_name);
+    m.mutable_hello()->set_auth_token(o_.auth_token);
+    if (Status s = conn_.Send(m); !s.ok()) return Fail(s);
+    auto reply = conn_.Receive(o_.timeout_s);
+    if (!reply.ok()) return Fail(reply.status().WithContext("hello"));
+    if (reply->has_error()) {
+      out_->errors.push_back(reply->error());
+      return Fail(Status(StatusCode::kUnavailable, fmt::format("hello refused: {}: {}",
+                                                               wire::ErrorCodeName(reply->error().code()),
+                                                               reply->error().message())));
+    }
+    out_->session_id = reply->hello_reply().session_id();
+    return true;
+  }
+
+  // Handles answers until `until`.
+  bool ReadUntil(Clock::time_point until) {
+    while (true) {
+      const double left = std::chrono::duration<double>(until - Clock::now()).count();
+      if (left <= 0) return true;
+      if (!ReadOne(left, /*timeout_is_ok=*/true)) return false;
+    }
+  }
+
+  bool ReadOne(double timeout_s, bool timeout_is_ok = false) {
+    auto m = conn_.Receive(std::max(timeout_s, 0.0));
+    if (!m.ok()) {
+      if (timeout_is_ok && m.status().code() == StatusCode::kResourceExhausted) return true;
+      if (m.status().code() == StatusCode::kUnavailable) out_->server_closed = true;
+      return Fail(m.status().WithContext(fmt::format("{} requests unanswered", pending_.size())));
+    }
+    if (m->has_error()) {
+      out_->errors.push_back(m->error());
+      std::erase(pending_, m->error().request_id());  // a refused request gets no Result
+      if (m->error().fatal()) return Fail(Status(StatusCode::kUnavailable, m->error().message()));
+    }
+    if (m->has_shutdown()) out_->got_shutdown = true;
+    if (m->has_result() && m->result().session_id() == out_->session_id) {
+      RegistrationOutcome outcome;
+      outcome.request_id = m->result().request_id();
+      outcome.result = m->result();
+      outcome.latency_ms = MsSince(sent_at_[outcome.request_id]);
+      if (auto T = wire::MatrixFromProto(m->result().t_world_base_internal()); T.ok()) outcome.T_world_base = *T;
+      out_->registrations.push_back(std::move(outcome));
+      std::erase(pending_, m->result().request_id());
+    }
+    return true;
+  }
+
+  const wire::Recording& rec_;
+  const HeadsetOptions& o_;
+  Pace pace_;
+  HeadsetRun* out_;
+  Connection conn_;
+  double hello_t_s_ = 0.0;
+  std::vector<std::uint64_t> pending_;
+  std::map<std::uint64_t, Clock::time_point> sent_at_;
+};
+
+}  // namespace
+
+HeadsetRun SendRecording(const wire::Recording& recording, const HeadsetOptions& options, Pace pace) {
+  HeadsetRun run;
+  run.status = Status::Internal("not run");
+  RecordingSender(recording, options, pace, &run).Run();
   return run;
 }
 

@@ -14,6 +14,7 @@
 #include "arref/robot/robot_model.h"
 #include "arref/scene/spatial_mesh.h"
 #include "arref/base/status.h"
+#include "recording.h"
 #include "wire.h"
 
 namespace arref::headset {
@@ -104,6 +105,13 @@ struct HeadsetRun {
 };
 
 HeadsetRun RunHeadset(const HeadsetScene& scene, const HeadsetOptions& options);
+
+// Sends a recorded session (wire/recording.h) to a live server: its Hello with options'
+// client_name and auth_token (a recording holds no token), then every other message at its
+// recorded time after the first (kOriginal) or back to back (kFast); then waits for the Result of
+// every accepted request. Registrations keep the recorded request ids.
+enum class Pace { kOriginal, kFast };
+HeadsetRun SendRecording(const wire::Recording& recording, const HeadsetOptions& options, Pace pace);
 
 // Many headsets at once (one thread each, seed i % seeds), for load tests and latency figures.
 std::vector<HeadsetRun> RunHeadsets(const HeadsetScene& scene, const HeadsetOptions& options, int clients);

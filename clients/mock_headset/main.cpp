@@ -35,6 +35,8 @@ struct Args {
   double soak_s = 0;  // > 0: soak mode (scripts/soak.sh)
   int bad_every = 5;
   std::string log_level = "warn";
+  std::string recording;
+  bool fast = false;
 };
 
 void AddFlags(CLI::App& app, Args& a) {
@@ -66,6 +68,9 @@ void AddFlags(CLI::App& app, Args& a) {
   app.add_flag("--corrupt-frame", a.corrupt, "Misbehave: send a frame that is not a protobuf message");
   app.add_flag("--oversized-message", a.oversized, "Misbehave: announce a 1 GiB message");
   app.add_flag("--never-read-replies", a.never_read, "Misbehave: never read, flood with Pings");
+  app.add_option("--send-recording", a.recording,
+                 "Send this recorded session (arref-server --record-dir) instead of mapping a cell");
+  app.add_flag("--fast", a.fast, "With --send-recording: as fast as possible instead of the recorded pace");
   app.add_flag("--json", a.json, "Print the outcome as JSON");
   app.add_option("--soak", a.soak_s, "Soak: --clients headsets reconnect and register again and again for this many "
                                      "seconds; prints throughput, latency per session and every error")
@@ -273,6 +278,19 @@ int main(int argc, char** argv) {
     args.options.on_progress = [](const wire::pb::Progress& p) {
       std::cerr << fmt::format("request {}: {} {:.0f} %\n", p.request_id(), p.stage(), p.fraction() * 100);
     };
+  if (!args.recording.empty()) {
+    auto recording = wire::ReadRecording(args.recording);
+    if (!recording.ok()) {
+      spdlog::error("{}", recording.status().ToString());
+      return 3;
+    }
+    const HeadsetRun run = SendRecording(*recording, args.options, args.fast ? Pace::kFast : Pace::kOriginal);
+    if (args.json)
+      std::cout << RunJson(run).dump(2) << std::endl;
+    else
+      PrintHuman(run);
+    return run.status.ok() ? 0 : 1;
+  }
   auto scene = BuildScene(args);
   if (!scene.ok()) {
     spdlog::error("{}", scene.status().ToString());

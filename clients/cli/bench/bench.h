@@ -66,6 +66,9 @@ struct Config {
   // 75 degrees per metre as sim::SetPoseJitter; 0: equal weights. Default: the method's own.
   double tracking_error_m = -1;
   RobustnessConfig robustness;
+  // Non-empty: the scenes experiment writes a picture of each cell's first seed's result per
+  // method there (scenes_<method>_<kind>_<cell>.png).
+  std::string images_dir;
 };
 
 // A simulated cell with everything a run needs.
@@ -76,6 +79,7 @@ struct Cell {
   sim::SimulatedCell sim;
   TriangleMesh scene_world;
   std::shared_ptr<const RobotSide> robot;  // samples and the expected headset surface
+  TriangleMesh robot_base;                 // the posed robot in its base frame, for pictures (MakeCells)
 };
 
 // One registration against ground truth.
@@ -104,6 +108,7 @@ struct Job {
   Iso3 T_world_seed = Iso3::Identity();
   RegistrationOptions options;
   bool seed_only = false;  // measure the seed itself (the paper's "user guess" row)
+  std::string image_path;  // non-empty: a picture of the result goes there (result_image.h)
 };
 
 Result<std::vector<Cell>> MakeCells(const RobotModel& robot, const std::vector<std::string>& kinds, const std::string& size,

@@ -15,6 +15,7 @@
 #include "arref/scene/sampling.h"
 #include "arref/scene/spatial_mesh.h"
 #include "bench.h"
+#include "result_image.h"
 
 namespace arref::bench {
 namespace {
@@ -78,6 +79,13 @@ void ExecuteOne(Job& job) {
   for (const auto& t : report->timings) run.stage_ms[t.stage] += t.ms;
   for (const auto& t : report->method_steps) run.stage_ms["register/" + t.stage] += t.ms;
   run.total_ms = report->total_ms();
+  if (!job.image_path.empty()) {
+    const ResultPicture picture{.scene_world = cell.scene_world, .robot_base = cell.robot_base,
+                                .T_world_base = report->T_world_base, .T_world_seed = job.T_world_seed};
+    auto image = RenderResult(picture, ResultImageOptions{.crop_radius_m = job.options.crop_radius_m});
+    const Status written = image.ok() ? WritePng(*image, job.image_path) : image.status();
+    if (!written.ok()) spdlog::warn("bench: no picture of {}: {}", job.image_path, written.ToString());
+  }
 }
 
 // A user's own walk: how far round, where, how far off, how tall, how many looks.
@@ -129,6 +137,7 @@ Result<std::vector<Cell>> MakeCells(const RobotModel& robot, const std::vector<s
       cell.scene_world = map.MergedWorld();
       ARREF_ASSIGN_OR_RETURN(cell.robot,
                              RobotSide::Create(robot, cell.sim.joints, defaults.model_samples, defaults.sample_seed));
+      ARREF_ASSIGN_OR_RETURN(cell.robot_base, robot.PosedMesh(cell.sim.joints));
       spdlog::info("bench: {} cell '{}' #{}: {} triangles", size, kind, i, cell.scene_world.triangles.size());
       cells.push_back(std::move(cell));
     }

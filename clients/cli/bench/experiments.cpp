@@ -348,6 +348,8 @@ Status ScenesExperiment(const RobotModel& robot, const Config& config, Tables* t
         if (config.head_path) jobs.back().options.head_path_world = cell.sim.head_path_world;
         if (config.tracking_error_m >= 0)
           jobs.back().options.arref_icp.tracking_error = {config.tracking_error_m, 75.0 * config.tracking_error_m};
+        if (!config.images_dir.empty() && s == 0)
+          jobs.back().image_path = fmt::format("{}/scenes_{}_{}_{}.png", config.images_dir, method, cell.kind, cell.index);
       }
   spdlog::info("bench: methods on each kind of scene: {} runs", jobs.size());
   const std::vector<Run> runs = Execute(jobs, config.jobs);

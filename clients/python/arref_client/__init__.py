@@ -1,0 +1,18 @@
+"""Python client of arref-server: connect, upload a mesh, seed, register, subscribe, replay.
+
+    from arref_client import Client
+    with Client("127.0.0.1", 7311) as c:
+        c.upload_mesh("scene.ply", frame="ros")
+        result = c.register("kr5", seed=(1.0, 0.2, 0.0, 0, 0, 0, 1), frame="ros")
+        print(result.status, result.pose, result.matrix)
+"""
+
+from .client import Client, RegistrationResult, RobotInfo, frame_convention, DEFAULT_PORT, PROTOCOL_VERSION
+from .errors import ArrefError, ConnectionClosed, Timeout, ServerError, RegistrationFailed, Cancelled
+from .mesh import Mesh, load_mesh, split_into_surfaces
+from ._proto import pb
+
+__all__ = ["Client", "RegistrationResult", "RobotInfo", "frame_convention", "DEFAULT_PORT", "PROTOCOL_VERSION",
+           "ArrefError", "ConnectionClosed", "Timeout", "ServerError", "RegistrationFailed", "Cancelled",
+           "Mesh", "load_mesh", "split_into_surfaces", "pb"]
+__version__ = "0.1.0"

@@ -1,0 +1,160 @@
+"""arref-py: a small command line over the Python client (python3 -m arref_client --help).
+
+Exit codes: 0 OK or LOW_CONFIDENCE; 1 FAILED or CANCELLED; 2 bad command line; 3 a file or
+value is malformed; 6 the server answered an Error (its code name is printed); 7 no connection.
+"""
+
+import argparse
+import json
+import sys
+
+from . import errors
+from .client import DEFAULT_PORT, Client
+
+EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_BAD_INPUT, EXIT_SERVER_ERROR, EXIT_NO_CONNECTION = 0, 1, 2, 3, 6, 7
+
+
+def _pose(text):
+    try:
+        values = [float(x) for x in text.split(",")]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"'{text}' is not x,y,z,qx,qy,qz,qw") from None
+    if len(values) != 7:
+        raise argparse.ArgumentTypeError(f"'{text}' has {len(values)} numbers, a pose has 7 (x,y,z,qx,qy,qz,qw)")
+    return values
+
+
+def _seed_and_frame(args):
+    """The seed and its frame: --seed in --frame, else the truth file's seeds[--seed-index] in its frame."""
+    if args.seed is not None:
+        return args.seed, args.frame
+    if not args.truth:
+        raise ValueError("no seed: pass --seed x,y,z,qx,qy,qz,qw or --truth FILE (arref simulate's truth JSON)")
+    with open(args.truth) as f:
+        truth = json.load(f)
+    seeds = truth.get("seeds", [])
+    if not 0 <= args.seed_index < len(seeds):
+        raise ValueError(f"--seed-index {args.seed_index}: {args.truth} has {len(seeds)} seeds")
+    return seeds[args.seed_index], truth.get("frame", "ros")
+
+
+def _result_json(r):
+    return {"request_id": r.request_id, "status": r.status, "robot_id": r.robot_id, "session_id": r.session_id,
+            "frame": r.frame, "position": list(r.pose[:3]), "orientation": list(r.pose[3:]),
+            "T_world_base": r.matrix.ravel().tolist(), "message": r.message, "method": r.method, "rms_m": r.rms_m,
+            "inlier_fraction": r.inlier_fraction, "iterations": r.iterations, "stages": r.stages,
+            "server_ms": r.server_ms}
+
+
+def _connect(args):
+    return Client(args.host, args.port, client_name="arref-py", auth_token=args.auth_token, timeout=args.timeout)
+
+
+def cmd_info(args):
+    with _connect(args) as c:
+        print(json.dumps({"server_version": c.server_version, "session_id": c.session_id,
+                          "methods": c.methods, "default_method": c.default_method,
+                          "robots": [vars(r) for r in c.robots]}, indent=2))
+    return EXIT_OK
+
+
+def cmd_register(args):
+    seed, seed_frame = _seed_and_frame(args)
+    with _connect(args) as c:
+        ids = c.upload_mesh(args.scene, frame=args.frame)
+        print(f"uploaded {args.scene} as {len(ids)} surfaces ({args.frame} frame)", file=sys.stderr)
+        progress = (lambda stage, f: print(f"{stage} {f * 100:.0f} %", file=sys.stderr)) if not args.json else None
+        r = c.register(args.robot, seed=seed, frame=seed_frame, method=args.method, result_frame=args.frame,
+                       on_progress=progress, check=False)
+    if args.json:
+        print(json.dumps(_result_json(r), indent=2))
+    else:
+        print(f"request {r.request_id}: {r.status}{' (' + r.message + ')' if r.message else ''}")
+        print(f"  T_world_base ({r.frame}): position {r.pose[:3]} orientation {r.pose[3:]}")
+        print(f"  {r.method}: rms {r.rms_m * 1e3:.1f} mm, inliers {r.inlier_fraction * 100:.1f} %, "
+              f"{r.iterations} iterations, {r.server_ms:.0f} ms on the server")
+    return EXIT_OK if r.status in ("OK", "LOW_CONFIDENCE") else EXIT_FAILED
+
+
+def cmd_subscribe(args):
+    with _connect(args) as c:
+        c.subscribe(args.robot)
+        print(f"subscribed to {args.robot}", file=sys.stderr)
+        seen = 0
+        while args.count == 0 or seen < args.count:
+            try:
+                r = c.next_result(timeout=args.wait)
+            except errors.Timeout:
+                c.ping()  # keeps the session open past the server's idle timeout
+                continue
+            print(json.dumps(_result_json(r)), flush=True)
+            seen += 1
+    return EXIT_OK
+
+
+def cmd_send_recording(args):
+    from .recording import send_recording
+
+    out = send_recording(args.file, args.host, args.port, pace="fast" if args.fast else "original",
+                         auth_token=args.auth_token, timeout=args.timeout)
+    for e in out.errors:
+        print(f"server error {e}", file=sys.stderr)
+    for r in out.results:
+        print(json.dumps(_result_json(r)))
+    return EXIT_OK if all(r.status in ("OK", "LOW_CONFIDENCE") for r in out.results) else EXIT_FAILED
+
+
+def parser():
+    p = argparse.ArgumentParser(prog="arref-py", description="Python client of arref-server")
+    p.add_argument("--host", default="127.0.0.1")
+    p.add_argument("--port", type=int, default=DEFAULT_PORT)
+    p.add_argument("--auth-token", default="", help="the server's auth_token, if it has one")
+    p.add_argument("--timeout", type=float, default=300.0, help="give up waiting for a reply after this many s")
+    sub = p.add_subparsers(dest="command", required=True)
+
+    sub.add_parser("info", help="the server's version, robots and methods").set_defaults(run=cmd_info)
+
+    r = sub.add_parser("register", help="upload a mesh file, seed, register, print the result")
+    r.add_argument("--scene", required=True, help="PLY, OBJ or STL mesh of the headset's world")
+    r.add_argument("--frame", choices=["ros", "unity"], default="ros", help="convention of --scene, --seed, output")
+    r.add_argument("--seed", type=_pose, help="seed x,y,z,qx,qy,qz,qw in --frame")
+    r.add_argument("--truth", help="arref simulate's truth JSON: its seeds[--seed-index] is the seed")
+    r.add_argument("--seed-index", type=int, default=0)
+    r.add_argument("--robot", default="kr5", help="robot id served by the server")
+    r.add_argument("--method", default="", help="registration method (default: the server's)")
+    r.add_argument("--json", action="store_true", help="print the result as JSON")
+    r.set_defaults(run=cmd_register)
+
+    s = sub.add_parser("subscribe", help="print every result on a robot as a JSON line")
+    s.add_argument("--robot", default="kr5")
+    s.add_argument("--count", type=int, default=0, help="stop after this many results (0: never)")
+    s.add_argument("--wait", type=float, default=30.0, help="ping the server after this long without a result, s")
+    s.set_defaults(run=cmd_subscribe)
+
+    x = sub.add_parser("send-recording", help="send a recorded session (arref-server --record-dir) to a server")
+    x.add_argument("file")
+    x.add_argument("--fast", action="store_true", help="as fast as possible instead of the recorded pace")
+    x.set_defaults(run=cmd_send_recording)
+    return p
+
+
+def main(argv=None):
+    args = parser().parse_args(argv)
+    try:
+        return args.run(args)
+    except errors.ConnectionClosed as e:
+        print(f"arref-py: {e}", file=sys.stderr)
+        return EXIT_NO_CONNECTION
+    except errors.ServerError as e:
+        print(f"arref-py: server error {e}", file=sys.stderr)
+        return EXIT_SERVER_ERROR
+    except errors.Timeout as e:
+        print(f"arref-py: {e}", file=sys.stderr)
+        return EXIT_NO_CONNECTION
+    except (ValueError, OSError) as e:
+        print(f"arref-py: {e}", file=sys.stderr)
+        return EXIT_BAD_INPUT
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,403 @@
+"""A blocking client of arref-server (protocol arref.v1, proto/arref/v1/arref.proto).
+
+Poses are (x, y, z, qx, qy, qz, qw) in the frame convention named with them ("ros" or
+"unity"); the server converts. Every server Error becomes a typed exception (errors.py).
+"""
+
+import collections
+import itertools
+import socket
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+from google.protobuf.internal.decoder import _DecodeVarint
+from google.protobuf.internal.encoder import _VarintBytes
+
+from . import errors
+from ._proto import pb
+from .mesh import Mesh, load_mesh, split_into_surfaces
+
+PROTOCOL_VERSION = pb.PROTOCOL_VERSION_CURRENT
+DEFAULT_PORT = 7311
+
+_FRAMES = {"ros": pb.FRAME_CONVENTION_ROS, "unity": pb.FRAME_CONVENTION_UNITY}
+
+
+def frame_convention(frame):
+    """pb.FrameConvention of "ros" / "unity" (or of a FrameConvention value)."""
+    if isinstance(frame, str):
+        try:
+            return _FRAMES[frame.lower()]
+        except KeyError:
+            raise ValueError(f"frame '{frame}': expected ros or unity") from None
+    if frame in (pb.FRAME_CONVENTION_ROS, pb.FRAME_CONVENTION_UNITY):
+        return frame
+    raise ValueError(f"frame {frame!r}: expected ros or unity")
+
+
+def pose_to_proto(pose, out):
+    values = [float(x) for x in pose]
+    if len(values) != 7:
+        raise ValueError(f"a pose is x,y,z,qx,qy,qz,qw (7 numbers), got {len(values)}")
+    out.position.x, out.position.y, out.position.z = values[:3]
+    out.orientation.x, out.orientation.y, out.orientation.z, out.orientation.w = values[3:]
+    return out
+
+
+def pose_from_proto(p):
+    return (p.position.x, p.position.y, p.position.z, p.orientation.x, p.orientation.y, p.orientation.z,
+            p.orientation.w)
+
+
+def encode_frame(message):
+    """The message with its varint length prefix (protobuf's delimited framing)."""
+    body = message.SerializeToString()
+    return _VarintBytes(len(body)) + body
+
+
+def read_frames(data, message_type):
+    """Every delimited message of a byte string, in order. Raises ValueError on a truncated tail."""
+    pos = 0
+    while pos < len(data):
+        size, pos = _DecodeVarint(data, pos)
+        if pos + size > len(data):
+            raise ValueError(f"truncated frame at byte {pos}: {size} bytes declared, {len(data) - pos} left")
+        message = message_type()
+        message.ParseFromString(data[pos:pos + size])
+        pos += size
+        yield message
+
+
+@dataclass
+class RobotInfo:
+    id: str
+    name: str
+    base_link: str
+    joint_names: list
+    default_positions: list
+
+
+@dataclass
+class RegistrationResult:
+    request_id: int
+    status: str          # "OK", "LOW_CONFIDENCE", "FAILED", "CANCELLED"
+    robot_id: str
+    session_id: int
+    pose: tuple          # T_world_base as (x, y, z, qx, qy, qz, qw) in `frame`
+    frame: str           # "ros" or "unity"
+    matrix: np.ndarray   # the same transform in the internal (ROS) frame, 4x4
+    message: str
+    method: str
+    rms_m: float
+    inlier_fraction: float
+    iterations: int
+    stages: list
+    server_ms: float
+    proto: object = field(repr=False)  # the arref.v1.Result message itself
+
+    @classmethod
+    def from_proto(cls, r):
+        frame = {pb.FRAME_CONVENTION_ROS: "ros", pb.FRAME_CONVENTION_UNITY: "unity"}.get(r.frame, "unspecified")
+        matrix = np.array(r.T_world_base_internal, dtype=np.float64).reshape(4, 4) if len(
+            r.T_world_base_internal) == 16 else np.full((4, 4), np.nan)
+        status = pb.ResultStatus.Name(r.status).replace("RESULT_STATUS_", "")
+        return cls(r.request_id, status, r.robot_id, r.session_id, pose_from_proto(r.T_world_base), frame, matrix,
+                   r.message, r.method, r.rms_m, r.inlier_fraction, r.iterations, list(r.stages), r.server_ms, r)
+
+    @property
+    def ok(self):
+        return self.status == "OK"
+
+
+class Client:
+    """One session with arref-server. Use as a context manager, or call close()."""
+
+    def __init__(self, host="127.0.0.1", port=DEFAULT_PORT, *, client_name="arref-python", auth_token="",
+                 timeout=300.0):
+        self.timeout = timeout
+        try:
+            self._sock = socket.create_connection((host, port), timeout=min(timeout, 30.0))
+        except OSError as e:
+            raise errors.ConnectionClosed(f"cannot connect to {host}:{port}: {e}") from e
+        self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        self._rx = b""
+        self._backlog = collections.deque()  # messages read while waiting for another
+        self._request_ids = itertools.count(1)
+        self._nonces = itertools.count(1)
+        self._next_surface_id = 1
+        self.async_errors = []  # Errors that answered nothing this client waited for
+        self._hello(client_name, auth_token)
+
+    # ------------------------------------------------------------ life cycle
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        self.close()
+
+    def close(self):
+        if self._sock is not None:
+            self._sock.close()
+            self._sock = None
+
+    def _hello(self, client_name, auth_token):
+        m = pb.ClientMessage()
+        m.hello.protocol_version = PROTOCOL_VERSION
+        m.hello.client_name = client_name
+        m.hello.auth_token = auth_token
+        self.send(m)
+        reply = self._wait(lambda s: s.WhichOneof("kind") == "hello_reply", "HelloReply")
+        r = reply.hello_reply
+        self.session_id = r.session_id
+        self.server_version = r.server_version
+        self.robots = [RobotInfo(x.id, x.name, x.base_link, list(x.joint_names), list(x.default_positions))
+                       for x in r.robots]
+        self.methods = list(r.methods)
+        self.default_method = r.default_method
+
+    # ------------------------------------------------------------ bytes
+
+    def send(self, message):
+        """Sends one ClientMessage."""
+        self.send_raw(encode_frame(message))
+
+    def send_raw(self, data):
+        if self._sock is None:
+            raise errors.ConnectionClosed("the client is closed")
+        try:
+            self._sock.sendall(data)
+        except OSError as e:
+            raise errors.ConnectionClosed(f"sending failed: {e}") from e
+
+    def receive(self, timeout=None):
+        """The next ServerMessage (backlog first). Raises Timeout or ConnectionClosed."""
+        if self._backlog:
+            return self._backlog.popleft()
+        return self._read(self.timeout if timeout is None else timeout)
+
+    def _read(self, timeout):
+        deadline = time.monotonic() + timeout
+        while True:
+            if self._rx:
+                try:
+                    size, pos = _DecodeVarint(self._rx, 0)
+                except IndexError:  # the length prefix itself is incomplete
+                    size, pos = 1 << 62, 0
+                if len(self._rx) >= pos + size:
+                    message = pb.ServerMessage()
+                    message.ParseFromString(self._rx[pos:pos + size])
+                    self._rx = self._rx[pos + size:]
+                    return message
+            left = deadline - time.monotonic()
+            if left <= 0:
+                raise errors.Timeout(f"no reply from the server within {timeout:.1f} s")
+            self._sock.settimeout(left)
+            try:
+                chunk = self._sock.recv(1 << 16)
+            except socket.timeout:
+                continue
+            except OSError as e:
+                raise errors.ConnectionClosed(f"receiving failed: {e}") from e
+            if not chunk:
+                raise errors.ConnectionClosed("the server closed the connection")
+            self._rx += chunk
+
+    def _wait(self, matches, what, request_id=None, timeout=None):
+        """Reads until a message that `matches`; others go to the backlog. An Error for request_id,
+        or a fatal one, is raised; other Errors are kept in async_errors."""
+        for i, s in enumerate(self._backlog):
+            if matches(s):
+                del self._backlog[i]
+                return s
+            if request_id is not None and s.WhichOneof("kind") == "error" and s.error.request_id == request_id:
+                del self._backlog[i]  # read while waiting for something else: its answer after all
+                if s.error in self.async_errors:
+                    self.async_errors.remove(s.error)
+                raise errors.error_from_message(s.error)
+        deadline = time.monotonic() + (self.timeout if timeout is None else timeout)
+        kept = []
+        try:
+            while True:
+                left = deadline - time.monotonic()
+                if left <= 0:
+                    raise errors.Timeout(f"no {what} from the server in time")
+                message = self._read(left)
+                if matches(message):
+                    return message
+                if message.WhichOneof("kind") == "error":
+                    e = message.error
+                    if e.fatal or (request_id is not None and e.request_id == request_id):
+                        raise errors.error_from_message(e)
+                    self.async_errors.append(e)
+                kept.append(message)
+        finally:
+            self._backlog.extend(kept)
+
+    def sync(self, timeout=None):
+        """Waits until the server has handled everything sent so far (a Ping round trip); raises the
+        first Error it answered in between (e.g. BadSurface)."""
+        nonce = next(self._nonces)
+        m = pb.ClientMessage()
+        m.ping.nonce = nonce
+        before = len(self.async_errors)
+        self.send(m)
+        self._wait(lambda s: s.WhichOneof("kind") == "pong" and s.pong.nonce == nonce, "Pong", timeout=timeout)
+        new = self.async_errors[before:]
+        if new:
+            del self.async_errors[before:]
+            raise errors.error_from_message(new[0])
+
+    # ------------------------------------------------------------ the spatial map
+
+    def upload_mesh(self, mesh, frame="ros", chunk_m=1.0, timestamp_s=0.0):
+        """Sends a mesh (a Mesh or a PLY/OBJ/STL path) as surfaces of chunk_m cubes in `frame`, and
+        waits until the server took them. Returns the surface ids."""
+        if not isinstance(mesh, Mesh):
+            mesh = load_mesh(mesh)
+        ids = []
+        for part in split_into_surfaces(mesh, chunk_m):
+            ids.append(self.upsert_surface(part.vertices, part.triangles, frame,
+                                           pose=(*part.corner, 0.0, 0.0, 0.0, 1.0), timestamp_s=timestamp_s))
+        self.sync()
+        return ids
+
+    def upsert_surface(self, vertices, triangles, frame, pose=(0, 0, 0, 0, 0, 0, 1), surface_id=None,
+                       timestamp_s=0.0):
+        """Sends one surface (no wait; errors come with the next sync()). Returns its id."""
+        if surface_id is None:
+            surface_id = self._next_surface_id
+        self._next_surface_id = max(self._next_surface_id, surface_id + 1)
+        m = pb.ClientMessage()
+        s = m.surface_upsert
+        s.surface_id = surface_id
+        s.vertices.extend(np.asarray(vertices, dtype=np.float32).ravel().tolist())
+        s.triangles.extend(np.asarray(triangles, dtype=np.int64).ravel().tolist())
+        pose_to_proto(pose, s.T_world_surface)
+        s.frame = frame_convention(frame)
+        s.timestamp_s = timestamp_s
+        self.send(m)
+        return surface_id
+
+    def remove_surface(self, surface_id):
+        m = pb.ClientMessage()
+        m.surface_remove.surface_id = surface_id
+        self.send(m)
+
+    def set_seed(self, pose, frame="ros", timestamp_s=0.0):
+        """The session's seed: a guess of T_world_base."""
+        m = pb.ClientMessage()
+        pose_to_proto(pose, m.seed_pose.T_world_seed)
+        m.seed_pose.frame = frame_convention(frame)
+        m.seed_pose.timestamp_s = timestamp_s
+        self.send(m)
+
+    def set_joints(self, joints, robot_id="", timestamp_s=0.0):
+        """The robot's joint positions by name (radians or metres)."""
+        m = pb.ClientMessage()
+        m.joint_state.robot_id = robot_id
+        for name, value in joints.items():
+            m.joint_state.names.append(name)
+            m.joint_state.positions.append(float(value))
+        m.joint_state.timestamp_s = timestamp_s
+        self.send(m)
+
+    # ------------------------------------------------------------ registration
+
+    def register(self, robot_id, *, seed=None, frame="ros", joints=None, method="", result_frame=None,
+                 head_path=None, request_id=None, on_progress=None, check=True, timeout=None, **params):
+        """Asks for a registration and waits for its Result.
+
+        seed: a pose in `frame` for this request (default: the session's seed). params:
+        crop_radius_m, scene_samples, icp_max_correspondence_m, icp_max_iterations. With check,
+        a FAILED or CANCELLED result raises RegistrationFailed / Cancelled (carrying it)."""
+        rid = self.submit(robot_id, seed=seed, frame=frame, joints=joints, method=method,
+                          result_frame=result_frame, head_path=head_path, request_id=request_id, **params)
+        return self.wait_result(rid, on_progress=on_progress, check=check, timeout=timeout)
+
+    def submit(self, robot_id, *, seed=None, frame="ros", joints=None, method="", result_frame=None,
+               head_path=None, request_id=None, **params):
+        """Sends a RegisterRequest and waits for Accepted; returns its request id."""
+        rid = next(self._request_ids) if request_id is None else request_id
+        m = pb.ClientMessage()
+        r = m.register_request
+        r.request_id = rid
+        r.robot_id = robot_id
+        r.method = method
+        if seed is not None:
+            pose_to_proto(seed, r.seed.T_world_seed)
+            r.seed.frame = frame_convention(frame)
+        if joints:
+            for name, value in joints.items():
+                r.joints.names.append(name)
+                r.joints.positions.append(float(value))
+        if result_frame is not None:
+            r.result_frame = frame_convention(result_frame)
+        if head_path is not None:
+            r.head_path.frame = frame_convention(frame)
+            for p in np.asarray(head_path, dtype=np.float64).reshape(-1, 3):
+                q = r.head_path.positions.add()
+                q.x, q.y, q.z = p
+        for key, value in params.items():
+            if key not in ("crop_radius_m", "scene_samples", "icp_max_correspondence_m", "icp_max_iterations"):
+                raise TypeError(f"register: unknown parameter '{key}'")
+            setattr(r.params, key, value)
+        self.send(m)
+        self._wait(lambda s: s.WhichOneof("kind") == "accepted" and s.accepted.request_id == rid, "Accepted",
+                   request_id=rid)
+        return rid
+
+    def wait_result(self, request_id, on_progress=None, check=True, timeout=None):
+        def matches(s):
+            kind = s.WhichOneof("kind")
+            if kind == "progress" and s.progress.request_id == request_id:
+                if on_progress:
+                    on_progress(s.progress.stage, s.progress.fraction)
+                return False
+            return kind == "result" and s.result.request_id == request_id and s.result.session_id == self.session_id
+
+        message = self._wait(matches, f"Result of request {request_id}", request_id=request_id, timeout=timeout)
+        # Progress of this request is consumed, not kept.
+        self._backlog = collections.deque(
+            s for s in self._backlog
+            if not (s.WhichOneof("kind") == "progress" and s.progress.request_id == request_id))
+        if check and message.result.status in (pb.RESULT_STATUS_FAILED, pb.RESULT_STATUS_CANCELLED):
+            raise errors.error_from_result(message.result)
+        return RegistrationResult.from_proto(message.result)
+
+    def cancel(self, request_id):
+        m = pb.ClientMessage()
+        m.cancel.request_id = request_id
+        self.send(m)
+
+    # ------------------------------------------------------------ other programs' results
+
+    def subscribe(self, robot_id, unsubscribe=False):
+        """Results of every request on the robot (from any session) are pushed from now on."""
+        m = pb.ClientMessage()
+        m.subscribe.robot_id = robot_id
+        m.subscribe.unsubscribe = unsubscribe
+        self.send(m)
+        self._wait(lambda s: s.WhichOneof("kind") == "subscribed" and s.subscribed.robot_id == robot_id,
+                   "Subscribed")
+
+    def next_result(self, timeout=None):
+        """The next Result pushed to this session (a subscription's or its own), as RegistrationResult."""
+        for i, s in enumerate(self._backlog):
+            if s.WhichOneof("kind") == "result":
+                del self._backlog[i]
+                return RegistrationResult.from_proto(s.result)
+        message = self._wait(lambda s: s.WhichOneof("kind") == "result", "Result", timeout=timeout)
+        return RegistrationResult.from_proto(message.result)
+
+    def ping(self, payload=b""):
+        """Round trip in seconds."""
+        nonce = next(self._nonces)
+        m = pb.ClientMessage()
+        m.ping.nonce = nonce
+        m.ping.payload = payload
+        start = time.monotonic()
+        self.send(m)
+        self._wait(lambda s: s.WhichOneof("kind") == "pong" and s.pong.nonce == nonce, "Pong")
+        return time.monotonic() - start

@@ -1,0 +1,91 @@
+"""Test helpers: the real arref-server process on a free loopback port, and simulated cells with
+ground truth written by the real `arref simulate`. The build tree comes from ARREF_BINARY_DIR
+(CTest sets it) or ./build."""
+
+import json
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+
+SOURCE_DIR = os.environ.get("ARREF_SOURCE_DIR",
+                            os.path.abspath(os.path.join(os.path.dirname(__file__), "..", "..", "..")))
+BINARY_DIR = os.environ.get("ARREF_BINARY_DIR", os.path.join(SOURCE_DIR, "build"))
+SERVER = os.path.join(BINARY_DIR, "server", "arref-server")
+ARREF = os.path.join(BINARY_DIR, "clients", "cli", "arref")
+MOCK_HEADSET = os.path.join(BINARY_DIR, "clients", "mock_headset", "arref-mock-headset")
+
+
+def server_yaml(auth_token="", record_dir="", port=0):
+    lines = ["server:", "  address: 127.0.0.1", f"  port: {port}", "  workers: 2", "  idle_timeout_s: 300",
+             f"  auth_token: \"{auth_token}\""]
+    if record_dir:
+        lines.append(f"  record_dir: \"{record_dir}\"")
+    lines += ["robots:", "  - id: kr5", "    urdf: builtin"]
+    return "\n".join(lines) + "\n"
+
+
+class ServerProcess:
+    """arref-server with a test config; its port is read from the 'listening on' line."""
+
+    def __init__(self, tmp_path, auth_token="", record_dir="", port=0, extra_args=()):
+        self.config = tmp_path / f"server_{time.monotonic_ns()}.yaml"
+        self.config.write_text(server_yaml(auth_token, record_dir, port))
+        self.log_path = tmp_path / f"server_{time.monotonic_ns()}.log"
+        self._log = open(self.log_path, "w")
+        self.proc = subprocess.Popen([SERVER, "--config", str(self.config), *extra_args], stdout=subprocess.PIPE,
+                                     stderr=self._log, text=True)
+        line = self.proc.stdout.readline()  # blocks until the server listens or exits
+        if not line.startswith("listening on "):
+            log = self.log()
+            self.stop()
+            raise RuntimeError(f"arref-server did not start: {line!r}; log:\n{log}")
+        self.port = int(line.strip().rsplit(":", 1)[1])
+
+    def log(self):
+        if not self._log.closed:
+            self._log.flush()
+        return self.log_path.read_text()
+
+    def stop(self):
+        if self.proc.poll() is None:
+            self.proc.terminate()
+            try:
+                self.proc.wait(timeout=60)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        self._log.close()
+
+
+class Cell:
+    """A simulated cell: mesh files in several formats, the truth JSON and its frame."""
+
+    def __init__(self, folder, frame, rng_seed):
+        self.folder = folder
+        self.frame = frame
+        self.mesh = {}
+        for ext in ("ply", "obj", "stl"):
+            self.mesh[ext] = str(folder / f"scene_{frame}.{ext}")
+        self.truth_path = str(folder / f"truth_{frame}.json")
+        for ext, path in self.mesh.items():
+            truth = self.truth_path if ext == "ply" else str(folder / f"truth_{frame}_{ext}.json")
+            subprocess.run([ARREF, "--log-level", "warn", "simulate", "--rng-seed", str(rng_seed), "--frame", frame,
+                            "--mesh-out", path, "--truth-out", truth], check=True)
+        with open(self.truth_path) as f:
+            self.truth = json.load(f)
+
+    @property
+    def T_world_base(self):
+        """The true transform, internal (ROS) frame, 4x4."""
+        return np.array(self.truth["T_world_base"], dtype=np.float64).reshape(4, 4)
+
+    def seed(self, index=0):
+        return self.truth["seeds"][index]
+
+
+def python_cli(*args, **kwargs):
+    """Runs `python3 -m arref_client ARGS` with this interpreter and environment."""
+    return subprocess.run([sys.executable, "-m", "arref_client", *args], capture_output=True, text=True, **kwargs)

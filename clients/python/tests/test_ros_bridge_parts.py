@@ -1,0 +1,60 @@
+"""The ROS bridge's parts that need no ROS: quaternions, the publish filter, its config."""
+
+import numpy as np
+import pytest
+
+from arref_client.ros_bridge import (BridgeConfig, config_from_args, load_config, parser, quaternion_from_matrix,
+                                     should_publish)
+
+
+def matrix_from_quaternion(x, y, z, w):
+    return np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - z * w), 2 * (x * z + y * w)],
+                     [2 * (x * y + z * w), 1 - 2 * (x * x + z * z), 2 * (y * z - x * w)],
+                     [2 * (x * z - y * w), 2 * (y * z + x * w), 1 - 2 * (x * x + y * y)]])
+
+
+def test_quaternion_of_any_rotation_gives_the_rotation_back():
+    rng = np.random.default_rng(4)
+    # random ones, and the half turns where the trace is -1 and a naive formula divides by zero
+    qs = list(rng.normal(size=(200, 4))) + [[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]
+    for q in qs:
+        q = np.asarray(q, dtype=float) / np.linalg.norm(q)
+        R = matrix_from_quaternion(*q)
+        got = quaternion_from_matrix(R)
+        np.testing.assert_allclose(matrix_from_quaternion(*got), R, atol=1e-12)
+        assert abs(np.linalg.norm(got) - 1) < 1e-12
+
+
+class FakeResult:
+    def __init__(self, status):
+        self.status = status
+
+
+def test_only_ok_results_unless_configured():
+    c = BridgeConfig()
+    assert should_publish(FakeResult("OK"), c)
+    assert not should_publish(FakeResult("LOW_CONFIDENCE"), c)
+    assert not should_publish(FakeResult("FAILED"), c)
+    c.publish_low_confidence = True
+    assert should_publish(FakeResult("LOW_CONFIDENCE"), c)
+    assert not should_publish(FakeResult("FAILED"), c)
+
+
+def test_shipped_config_and_flags(tmp_path):
+    import os
+
+    pytest.importorskip("yaml", reason="python3-yaml reads the bridge's config")
+    shipped = os.path.join(os.path.dirname(__file__), "..", "..", "..", "config", "arref-ros-bridge.yaml")
+    c = load_config(shipped)
+    assert c.port == 7311 and c.world_frame == "hololens_world" and c.static
+    assert [(r.id, r.child_frame) for r in c.robots] == [("kr5", "base_link")]
+    args = parser().parse_args(["--config", shipped, "--port", "9000", "--robot", "ur5:ur5_base:map", "--robot", "kr5",
+                                "--dynamic"])
+    c = config_from_args(args)
+    assert c.port == 9000 and not c.static
+    assert [(r.id, r.child_frame, r.parent_frame) for r in c.robots] == [("ur5", "ur5_base", "map"), ("kr5", "", "")]
+
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("world_frmae: x\n")
+    with pytest.raises(ValueError, match="world_frmae"):
+        load_config(str(bad))

@@ -1,0 +1,179 @@
+"""arref-ros-bridge against a real roscore (started and stopped here) and the real arref-server: a
+registration appears on tf with the configured frames, the result's data stamp and its values;
+a LOW_CONFIDENCE one does not; the bridge reconnects by itself when the server comes back."""
+
+import os
+import signal
+import socket
+import subprocess
+import sys
+import time
+import xmlrpc.client
+
+import numpy as np
+import pytest
+
+sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "python", "tests"))
+from arref_testing import Cell, ServerProcess  # noqa: E402
+
+from arref_client import Client  # noqa: E402
+from arref_client.ros_bridge import quaternion_from_matrix  # noqa: E402
+
+BRIDGE = os.path.join(os.path.dirname(__file__), "..", "arref-ros-bridge")
+PARENT, CHILD = "hololens_world", "kr5_base"
+WAIT_S = 120.0  # only so that a broken bridge fails instead of hanging
+
+
+def free_port():
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def wait_for(predicate, what, timeout=WAIT_S):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        value = predicate()
+        if value:
+            return value
+        time.sleep(0.1)
+    raise AssertionError(f"timed out waiting for {what}")
+
+
+class Process:
+    """A child process in its own process group (roscore starts rosmaster and rosout), logging to a file."""
+
+    def __init__(self, args, log_path, env):
+        self.log_path = log_path
+        self._log = open(log_path, "w")
+        self.proc = subprocess.Popen(args, stdout=self._log, stderr=subprocess.STDOUT, env=env, start_new_session=True)
+
+    def log(self):
+        self._log.flush()
+        with open(self.log_path) as f:
+            return f.read()
+
+    def stop(self, sig=signal.SIGINT):
+        if self.proc.poll() is None:
+            os.killpg(self.proc.pid, sig)
+            try:
+                self.proc.wait(timeout=30)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+                self.proc.wait()
+        self._log.close()
+
+
+@pytest.fixture(scope="module")
+def ros(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("ros")
+    port = free_port()
+    uri = f"http://127.0.0.1:{port}"
+    env = dict(os.environ, ROS_MASTER_URI=uri, ROS_HOME=str(folder), ROS_IP="127.0.0.1", ROS_HOSTNAME="127.0.0.1")
+    core = Process(["roscore", "-p", str(port)], str(folder / "roscore.log"), env)
+
+    def master_up():
+        try:
+            return xmlrpc.client.ServerProxy(uri).getPid("/arref_test")[0] == 1
+        except OSError:
+            return False
+
+    try:
+        wait_for(master_up, f"roscore on {uri}\n{core.log()}")
+        os.environ.update({k: env[k] for k in ("ROS_MASTER_URI", "ROS_HOME", "ROS_IP", "ROS_HOSTNAME")})
+        import rospy
+        import tf2_ros
+        from tf2_msgs.msg import TFMessage
+
+        rospy.init_node("arref_bridge_test", anonymous=True, disable_signals=True)
+        buffer = tf2_ros.Buffer()
+        listener = tf2_ros.TransformListener(buffer)
+        static_messages = []
+        rospy.Subscriber("/tf_static", TFMessage, static_messages.append)
+        yield {"env": env, "buffer": buffer, "listener": listener, "static": static_messages, "folder": folder}
+        rospy.signal_shutdown("test done")
+    finally:
+        core.stop()
+
+
+@pytest.fixture(scope="module")
+def cell(tmp_path_factory):
+    return Cell(tmp_path_factory.mktemp("cell"), "ros", 6)
+
+
+def lookup(buffer):
+    import rospy
+
+    if not buffer.can_transform(PARENT, CHILD, rospy.Time(0)):
+        return None
+    return buffer.lookup_transform(PARENT, CHILD, rospy.Time(0))
+
+
+def latest_static(ros):
+    """The robot's transform as last sent on /tf_static (tf2 answers a static lookup with the
+    time asked for, so the stamp is read from the message itself)."""
+    for msg in reversed(ros["static"]):
+        for t in msg.transforms:
+            if t.child_frame_id == CHILD:
+                return t
+    return None
+
+
+def assert_is_result(t, sent, result):
+    """t: what tf2 answers for PARENT -> CHILD; sent: the /tf_static message's transform."""
+    for x in (t, sent):
+        assert x.header.frame_id == PARENT and x.child_frame_id == CHILD
+        tr, q = x.transform.translation, x.transform.rotation
+        np.testing.assert_allclose([tr.x, tr.y, tr.z], result.matrix[:3, 3], atol=1e-9)
+        expected = np.array(quaternion_from_matrix(result.matrix[:3, :3]))
+        got = np.array([q.x, q.y, q.z, q.w])
+        assert min(np.abs(got - expected).max(), np.abs(got + expected).max()) < 1e-9
+    # the time its data was taken (the request's scene), not when it was published
+    assert result.proto.scene_time_unix_s > 0
+    assert abs(sent.header.stamp.to_sec() - result.proto.scene_time_unix_s) < 1e-6
+
+
+def test_registration_appears_on_tf_and_survives_a_server_restart(ros, cell, tmp_path):
+    port = free_port()
+    server = ServerProcess(tmp_path, port=port)
+    bridge = Process([sys.executable, BRIDGE, "--port", str(port), "--robot", f"kr5:{CHILD}:{PARENT}",
+                      "--reconnect", "0.5"], str(tmp_path / "bridge.log"), ros["env"])
+    try:
+        wait_for(lambda: "publishing robot 'kr5'" in bridge.log(), f"the bridge to subscribe\n{bridge.log()}")
+        with Client("127.0.0.1", port) as c:
+            c.upload_mesh(cell.mesh["ply"])
+            first = c.register("kr5", seed=cell.seed(0), method="arref-icp-fast")
+            received_at = time.time()
+        assert first.status == "OK", first.message
+        t = wait_for(lambda: lookup(ros["buffer"]), f"{PARENT} -> {CHILD} on tf\n{bridge.log()}")
+        sent = wait_for(lambda: latest_static(ros), "the transform on /tf_static")
+        assert_is_result(t, sent, first)
+        assert sent.header.stamp.to_sec() < received_at
+        np.testing.assert_allclose(first.matrix[:3, 3], cell.T_world_base[:3, 3], atol=0.03)
+
+        # LOW_CONFIDENCE (pcl-icp never says OK) is not published: tf keeps the OK result.
+        with Client("127.0.0.1", port) as c:
+            c.upload_mesh(cell.mesh["ply"])
+            doubtful = c.register("kr5", seed=cell.seed(1), method="pcl-icp")
+        assert doubtful.status == "LOW_CONFIDENCE"
+        wait_for(lambda: f"request {doubtful.request_id}: LOW_CONFIDENCE" in bridge.log(), "the bridge to skip it")
+        assert_is_result(lookup(ros["buffer"]), latest_static(ros), first)
+
+        # The server goes away and comes back on the same port: the bridge reconnects by itself.
+        server.stop()
+        wait_for(lambda: "connection to arref-server lost" in bridge.log(), f"the bridge to notice\n{bridge.log()}")
+        server = ServerProcess(tmp_path, port=port)
+        wait_for(lambda: "reconnected to arref-server" in bridge.log(), f"the bridge to reconnect\n{bridge.log()}")
+        with Client("127.0.0.1", port) as c:
+            c.upload_mesh(cell.mesh["ply"])
+            second = c.register("kr5", seed=cell.seed(2), method="arref-icp-fast")
+        assert second.status == "OK"
+        wait_for(lambda: (lambda t: t and abs(t.header.stamp.to_sec() - second.proto.scene_time_unix_s) < 1e-6)(
+            latest_static(ros)), f"the second result on /tf_static\n{bridge.log()}")
+        wait_for(lambda: (lambda t: t and abs(t.transform.translation.x - second.matrix[0, 3]) < 1e-9)(
+            lookup(ros["buffer"])), "tf2 to take the second result")
+        assert_is_result(lookup(ros["buffer"]), latest_static(ros), second)
+    finally:
+        bridge.stop(signal.SIGTERM)
+        server.stop()
+    assert bridge.proc.returncode == 0, bridge.log()

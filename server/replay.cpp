@@ -1,0 +1,155 @@
+#include "replay.h"
+
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+
+#include <algorithm>
+#include <map>
+#include <optional>
+
+#include "arref/scene/spatial_mesh.h"
+#include "convert.h"
+#include "registration_job.h"
+#include "request_builder.h"
+
+namespace arref::server {
+namespace {
+
+namespace pb = wire::pb;
+
+// What one recorded session held, as the server's Session held it (without its limits, which
+// a recording already passed).
+class OfflineSession {
+ public:
+  OfflineSession(const pb::RecordingHeader& header, RobotRegistry& robots, const RegistrationOptions& registration)
+      : header_(header), robots_(robots), registration_(registration) {}
+
+  // The answer to one message, if it has one.
+  std::optional<pb::ServerMessage> Handle(const pb::ClientMessage& m, double t_s) {
+    using K = pb::ClientMessage::KindCase;
+    switch (m.kind_case()) {
+      case K::kSurfaceUpsert: return OnSurfaceUpsert(m.surface_upsert());
+      case K::kSurfaceRemove:
+        if (!spatial_.Remove(m.surface_remove().surface_id()))
+          return Error(pb::ERROR_CODE_UNKNOWN_SURFACE, "surface is not held by this session", 0,
+                       m.surface_remove().surface_id());
+        return std::nullopt;
+      case K::kSeedPose: return OnSeedPose(m.seed_pose());
+      case K::kJointState: return OnJointState(m.joint_state());
+      case K::kRegisterRequest: return OnRegisterRequest(m.register_request(), t_s);
+      default: return std::nullopt;  // Hello, Cancel, Subscribe, Ping: nothing to redo offline
+    }
+  }
+
+ private:
+  static pb::ServerMessage Error(pb::ErrorCode code, const std::string& message, std::uint64_t request_id = 0,
+                                 std::uint64_t surface_id = 0) {
+    pb::ServerMessage reply;
+    auto* e = reply.mutable_error();
+    e->set_code(code);
+    e->set_message(message);
+    e->set_request_id(request_id);
+    e->set_surface_id(surface_id);
+    return reply;
+  }
+
+  std::optional<pb::ServerMessage> OnSurfaceUpsert(const pb::SurfaceUpsert& m) {
+    auto surface = wire::SurfaceFromProto(m);
+    Status s = surface.ok() ? spatial_.Upsert(std::move(*surface)) : surface.status();
+    if (!s.ok())
+      return Error(pb::ERROR_CODE_BAD_SURFACE, fmt::format("surface {} rejected: {}", m.surface_id(), s.message()), 0,
+                   m.surface_id());
+    return std::nullopt;
+  }
+
+  std::optional<pb::ServerMessage> OnSeedPose(const pb::SeedPose& m) {
+    const auto frame = wire::FromProto(m.frame());
+    if (!frame.ok()) return Error(pb::ERROR_CODE_INVALID_ARGUMENT, "SeedPose: " + frame.status().message());
+    auto T = wire::PoseFromProto(m.t_world_seed(), *frame);
+    if (!T.ok()) return Error(pb::ERROR_CODE_INVALID_ARGUMENT, "SeedPose.T_world_seed: " + T.status().message());
+    seed_ = *T;
+    seed_frame_ = *frame;
+    return std::nullopt;
+  }
+
+  std::optional<pb::ServerMessage> OnJointState(const pb::JointState& m) {
+    auto joints = wire::JointsFromProto(m);
+    if (!joints.ok()) return Error(pb::ERROR_CODE_INVALID_ARGUMENT, "JointState: " + joints.status().message());
+    if (!m.robot_id().empty()) {  // refused as the server refuses it, so later requests see the same state
+      const ServedRobot* robot = robots_.Find(m.robot_id());
+      if (!robot) return Error(pb::ERROR_CODE_UNKNOWN_ROBOT, "JointState: robot '" + m.robot_id() + "' is not served");
+      if (auto checked = robots_.ResolveJoints(*robot, *joints); !checked.ok())
+        return Error(pb::ERROR_CODE_INVALID_ARGUMENT, "JointState: " + checked.status().message());
+    }
+    joints_[m.robot_id()] = std::move(*joints);
+    return std::nullopt;
+  }
+
+  std::optional<pb::ServerMessage> OnRegisterRequest(const pb::RegisterRequest& m, double t_s) {
+    auto job = BuildJob(m, robots_, registration_,
+                        SessionDefaults{.seed = seed_, .seed_frame = seed_frame_, .joints = &joints_});
+    if (!job.ok()) return Error(RequestErrorCode(job.status()), job.status().message(), m.request_id());
+    if (spatial_.size() == 0)
+      return Error(pb::ERROR_CODE_NO_SCENE, "the session holds no surfaces: send SurfaceUpsert messages first",
+                   m.request_id());
+    Job& j = **job;
+    j.session_id = header_.session_id();
+    j.scene_world = spatial_.MergedWorld();
+    j.scene_time_unix_s = header_.start_unix_s() + t_s;  // as the server stamped it, to the recording's precision
+    for (const auto& [sid, surface] : spatial_.surfaces())
+      j.scene_headset_time_s = std::max(j.scene_headset_time_s, surface.timestamp_s);
+    const JobOutcome outcome = RunRegistrationJob(j, robots_);
+    const wire::ResultHeader result_header{.request_id = j.request_id, .robot_id = j.robot_id,
+                                           .session_id = j.session_id, .queue_ms = 0.0,
+                                           .server_ms = outcome.run_ms, .scene_time_unix_s = j.scene_time_unix_s,
+                                           .scene_headset_time_s = j.scene_headset_time_s};
+    return wire::ResultMessage(result_header, outcome.report, outcome.status, j.result_frame);
+  }
+
+  const pb::RecordingHeader& header_;
+  RobotRegistry& robots_;
+  const RegistrationOptions& registration_;
+  SpatialMesh spatial_;
+  std::optional<Iso3> seed_;
+  FrameConvention seed_frame_ = FrameConvention::kUnity;
+  std::map<std::string, JointValues> joints_;
+};
+
+// The registration defaults to replay with: the recording's, or the config's.
+Result<ServerConfig> RegistrationConfig(const wire::Recording& recording, const ServerConfig& config,
+                                        const ReplayOptions& options) {
+  if (!options.recorded_registration || recording.header.registration_yaml().empty()) return config;
+  auto recorded = ParseServerConfig(recording.header.registration_yaml(), ".");
+  if (!recorded.ok()) return recorded.status().WithContext("the recording's registration settings");
+  return recorded;
+}
+
+}  // namespace
+
+Result<std::vector<ReplayedAnswer>> ReplayRecording(const wire::Recording& recording, const ServerConfig& config,
+                                                    const ReplayOptions& options,
+                                                    const std::function<void(const ReplayedAnswer&)>& on_answer) {
+  ARREF_ASSIGN_OR_RETURN(const ServerConfig registration, RegistrationConfig(recording, config, options));
+  ARREF_ASSIGN_OR_RETURN(auto robots, RobotRegistry::Load(config.robots, registration.model_cache_entries));
+  for (const auto& info : recording.header.robots()) {
+    const ServedRobot* robot = robots->Find(info.id());
+    if (!robot)
+      spdlog::warn("replay: the recording's robot '{}' is not in the config (has: {}); its requests will fail",
+                   info.id(), robots->Ids());
+    else if (robot->model.name() != info.name())
+      spdlog::warn("replay: robot '{}' is URDF robot '{}' here but was '{}' when recorded", info.id(),
+                   robot->model.name(), info.name());
+  }
+  OfflineSession session(recording.header, *robots, registration.registration);
+  std::vector<ReplayedAnswer> answers;
+  for (std::size_t i = 0; i < recording.messages.size(); ++i) {
+    const auto& recorded = recording.messages[i];
+    auto answer = session.Handle(recorded.message(), recorded.t_s());
+    if (!answer) continue;
+    answers.push_back({.message_index = i, .t_s = recorded.t_s(), .message = std::move(*answer)});
+    if (on_answer) on_answer(answers.back());
+  }
+  return answers;
+}
+
+}  // namespace arref::server

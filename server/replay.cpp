@@ -72,16 +72,11 @@ class OfflineSession {
     return std::nullopt;
   }
 
+  // As the live session does (ReadJointState), so that later requests see the same state.
   std::optional<pb::ServerMessage> OnJointState(const pb::JointState& m) {
-    auto joints = wire::JointsFromProto(m);
-    if (!joints.ok()) return Error(pb::ERROR_CODE_INVALID_ARGUMENT, "JointState: " + joints.status().message());
-    if (!m.robot_id().empty()) {  // refused as the server refuses it, so later requests see the same state
-      const ServedRobot* robot = robots_.Find(m.robot_id());
-      if (!robot) return Error(pb::ERROR_CODE_UNKNOWN_ROBOT, "JointState: robot '" + m.robot_id() + "' is not served");
-      if (auto checked = robots_.ResolveJoints(*robot, *joints); !checked.ok())
-        return Error(pb::ERROR_CODE_INVALID_ARGUMENT, "JointState: " + checked.status().message());
-    }
-    joints_[m.robot_id()] = std::move(*joints);
+    JointStateOutcome outcome = ReadJointState(m, robots_);
+    if (outcome.keep) joints_[m.robot_id()] = std::move(outcome.joints);
+    if (outcome.error != pb::ERROR_CODE_UNSPECIFIED) return Error(outcome.error, outcome.message);
     return std::nullopt;
   }
 
@@ -112,7 +107,7 @@ class OfflineSession {
   SpatialMesh spatial_;
   std::optional<Iso3> seed_;
   FrameConvention seed_frame_ = FrameConvention::kUnity;
-  std::map<std::string, JointValues> joints_;
+  std::map<std::string, SessionJoints> joints_;
 };
 
 // The registration defaults to replay with: the recording's, or the config's.

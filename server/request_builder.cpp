@@ -118,4 +118,24 @@ pb::ErrorCode RequestErrorCode(const Status& status) {
   }
 }
 
+JointStateOutcome ReadJointState(const pb::JointState& m, const RobotRegistry& robots) {
+  const auto reject = [](pb::ErrorCode code, const std::string& why) {
+    return JointStateOutcome{.keep = true, .joints = SessionJoints{.values = {}, .rejected = why}, .error = code,
+                             .message = "JointState: " + why +
+                                        "; requests that would use it fail until a valid JointState replaces it"};
+  };
+  auto joints = wire::JointsFromProto(m);
+  if (!joints.ok()) return reject(pb::ERROR_CODE_INVALID_ARGUMENT, joints.status().message());
+  if (!m.robot_id().empty()) {
+    const ServedRobot* robot = robots.Find(m.robot_id());
+    if (!robot)
+      return JointStateOutcome{.keep = false, .joints = {}, .error = pb::ERROR_CODE_UNKNOWN_ROBOT,
+                               .message = fmt::format("JointState: robot '{}' is not served here (served: {})",
+                                                      m.robot_id(), robots.Ids())};
+    if (auto checked = robots.ResolveJoints(*robot, *joints); !checked.ok())
+      return reject(pb::ERROR_CODE_INVALID_ARGUMENT, checked.status().message());
+  }
+  return JointStateOutcome{.keep = true, .joints = SessionJoints{.values = std::move(*joints), .rejected = {}}};
+}
+
 }  // namespace arref::server

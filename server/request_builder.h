@@ -73,4 +73,15 @@ Result<std::shared_ptr<Job>> BuildJob(const wire::pb::RegisterRequest& m, const 
 
 wire::pb::ErrorCode RequestErrorCode(const Status& status);
 
+// What a JointState does to the session, for the live session and for replay alike: `keep`
+// (store `joints` under the message's robot id, rejected or not) and, when `error` is set, the
+// Error to answer with. An unknown robot is answered and nothing is kept.
+struct JointStateOutcome {
+  bool keep = true;
+  SessionJoints joints;
+  wire::pb::ErrorCode error = wire::pb::ERROR_CODE_UNSPECIFIED;
+  std::string message;
+};
+JointStateOutcome ReadJointState(const wire::pb::JointState& m, const RobotRegistry& robots);
+
 }  // namespace arref::server

@@ -386,21 +386,9 @@ void Session::OnSeedPose(const pb::SeedPose& m) {
 // The latest JointState for a robot id replaces the earlier one; a rejected one is kept as
 // rejected, so that requests which would use it fail instead of running on defaults.
 void Session::OnJointState(const pb::JointState& m) {
-  const auto reject = [&](pb::ErrorCode code, const std::string& why) {
-    joints_[m.robot_id()] = SessionJoints{.values = {}, .rejected = why};
-    SendError(code, "JointState: " + why + "; requests that would use it fail until a valid JointState replaces it");
-  };
-  auto joints = wire::JointsFromProto(m);
-  if (!joints.ok()) return reject(pb::ERROR_CODE_INVALID_ARGUMENT, joints.status().message());
-  if (!m.robot_id().empty()) {
-    const ServedRobot* robot = ctx_.robots.Find(m.robot_id());
-    if (!robot)
-      return SendError(pb::ERROR_CODE_UNKNOWN_ROBOT, fmt::format("JointState: robot '{}' is not served here (served: {})",
-                                                                 m.robot_id(), ctx_.robots.Ids()));
-    if (auto checked = ctx_.robots.ResolveJoints(*robot, *joints); !checked.ok())
-      return reject(pb::ERROR_CODE_INVALID_ARGUMENT, checked.status().message());
-  }
-  joints_[m.robot_id()] = SessionJoints{.values = std::move(*joints), .rejected = {}};
+  JointStateOutcome outcome = ReadJointState(m, ctx_.robots);
+  if (outcome.keep) joints_[m.robot_id()] = std::move(outcome.joints);
+  if (outcome.error != pb::ERROR_CODE_UNSPECIFIED) SendError(outcome.error, outcome.message);
 }
 
 void Session::OnCancel(const pb::Cancel& m) {

@@ -168,12 +168,17 @@ Result<JointValues> DrawJoints(const RobotModel& robot, std::mt19937_64& rng) {
 struct ArmPlan {
   const RobotModel* robot;
   bool requested;
+  const JointValues* joints = nullptr;  // given: this pose (else drawn)
 };
 
 // Places one arm (and its pedestal, and for "table" a table beside it); false when no place was found.
 Result<bool> PlaceArm(Layout& l, const ArmPlan& plan, RoomArm* arm, TriangleMesh* arm_mesh_room, Iso3* T_room_base) {
   auto& rng = *l.rng;
-  ARREF_ASSIGN_OR_RETURN(arm->joints, DrawJoints(*plan.robot, rng));
+  if (plan.joints) {
+    arm->joints = *plan.joints;
+  } else {
+    ARREF_ASSIGN_OR_RETURN(arm->joints, DrawJoints(*plan.robot, rng));
+  }
   ARREF_ASSIGN_OR_RETURN(const TriangleMesh posed, plan.robot->PosedMesh(arm->joints));
   if (posed.empty()) return Status::FailedPrecondition("robot '" + plan.robot->name() + "' has no geometry to simulate");
   arm->model = plan.robot->name();
@@ -417,7 +422,13 @@ Result<SimulatedRoom> SimulateRoom(const RoomRobots& robots, const RoomOptions& 
   room.T_world_room = MakeYawPose(U(-3, 3)(rng), U(-3, 3)(rng), U(-1.6, -1.2)(rng), U(0, 2 * std::numbers::pi)(rng));
   Layout l{room.room_size_m, {}, {}, {}, {}, &rng};
   AddShell(l);
-  std::vector<ArmPlan> plans(static_cast<std::size_t>(options.arms), ArmPlan{robots.requested, true});
+  // The requested model's arms share one pose (one program runs on both, and a request carries
+  // one joint state), unless options.same_joints is off.
+  std::optional<JointValues> shared;
+  if (options.arms > 0 && options.same_joints) {
+    ARREF_ASSIGN_OR_RETURN(shared, DrawJoints(*robots.requested, rng));
+  }
+  std::vector<ArmPlan> plans(static_cast<std::size_t>(options.arms), ArmPlan{robots.requested, true, shared ? &*shared : nullptr});
   if (options.other_arm) plans.push_back({robots.other, false});
   TriangleMesh arms_room;
   std::vector<std::pair<Iso3, double>> walked;  // each arm's base and horizontal reach

@@ -21,6 +21,7 @@ namespace arref::sim {
 struct RoomOptions {
   int arms = 1;                    // instances of the requested model: 0, 1 or 2
   bool other_arm = false;          // also one arm of `other` (RoomRobots), a distractor
+  bool same_joints = true;         // the requested model's arms share one joint state
   // The room's size is drawn in these ranges (x, y uniform; height uniform).
   double min_side_m = 4.0, max_side_m = 10.0;
   double min_height_m = 2.5, max_height_m = 3.0;

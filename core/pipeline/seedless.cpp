@@ -289,15 +289,24 @@ Result<WholeMapReport> AutoSearch(const RobotSide& robot, const TriangleMesh& sc
                 supports.size(), candidates.size(), candidates.empty() ? 0.0 : candidates.front().score);
   ARREF_RETURN_IF_ERROR(CheckCancel(cancel, "the candidates' registrations"));
   stages.Start("candidates", 0.2);
+  // Tier 1: every candidate with arref-icp's search and refinement only (no walk choice, no
+  // refit in context: those cost most of a request and only polish a fit already found).
   RegistrationOptions each = options;
   each.method = Method::kArrefIcp;
   each.arref_icp.expected_voxel_m = voxel;  // one voxel for every crop: the robot's surfaces are made once
+  RegistrationOptions search = each;
+  search.arref_icp.select_walk = false;
+  search.arref_icp.in_context = false;
+  // The detection puts a candidate within about a cell of a base on a known support: its own
+  // neighbourhood is searched (every yaw, the supports within 0.35 m of its height), not a grid.
+  search.arref_icp.position_steps = 0;
+  search.arref_icp.seed_error_m = std::min(search.arref_icp.seed_error_m, 0.25);
   std::vector<Result<RegistrationReport>> reports(candidates.size(), Status::Internal("not run"));
   std::atomic<std::size_t> done = 0;
   tbb::parallel_for(std::size_t{0}, candidates.size(), [&](std::size_t i) {
-    reports[i] = RegisterScene(robot, scene_world, candidates[i].T_world_seed, each, {}, cancel);
+    reports[i] = RegisterScene(robot, scene_world, candidates[i].T_world_seed, search, {}, cancel);
     const std::size_t n = ++done;
-    if (progress) progress(fmt::format("candidate {} of {}", n, candidates.size()), 0.2 + 0.75 * static_cast<double>(n) / static_cast<double>(candidates.size()));
+    if (progress) progress(fmt::format("candidate {} of {}", n, candidates.size()), 0.2 + 0.5 * static_cast<double>(n) / static_cast<double>(candidates.size()));
   });
   ARREF_RETURN_IF_ERROR(CheckCancel(cancel, "ranking"));
   std::vector<FoundInstance> fits;
@@ -309,20 +318,41 @@ Result<WholeMapReport> AutoSearch(const RobotSide& robot, const TriangleMesh& sc
     }
     fits.push_back({std::move(*reports[i]), candidates[i].score});
   }
-  out.stages_run.push_back("arref-icp x" + std::to_string(candidates.size()));
-  stages.Start("rank", 0.95);
+  out.stages_run.push_back(fmt::format("search-x{}", candidates.size()));
+  stages.Start("distinct", 0.7);
   std::stable_sort(fits.begin(), fits.end(), Better);
+  const std::size_t fitted = fits.size();
+  const std::string best_reason = fits.empty() ? "" : fits.front().report.status_reason;
+  std::vector<FoundInstance> distinct;
   for (FoundInstance& f : fits) {
     if (f.report.status == ResultStatus::kFailed) continue;
-    const bool duplicate = std::any_of(out.instances.begin(), out.instances.end(), [&](const FoundInstance& o) {
+    const bool duplicate = std::any_of(distinct.begin(), distinct.end(), [&](const FoundInstance& o) {
       return Horizontal(o.report.T_world_base, f.report.T_world_base) < apart;
     });
-    if (!duplicate) out.instances.push_back(std::move(f));
+    if (!duplicate) distinct.push_back(std::move(f));
   }
+  // Tier 2: the full arref-icp from each distinct fit, whose status is the instance's.
+  stages.Start("refine", 0.75);
+  std::vector<Result<RegistrationReport>> full(distinct.size(), Status::Internal("not run"));
+  tbb::parallel_for(std::size_t{0}, distinct.size(), [&](std::size_t i) {
+    full[i] = RegisterScene(robot, scene_world, distinct[i].report.T_world_base, each, {}, cancel);
+  });
+  for (std::size_t i = 0; i < distinct.size(); ++i) {
+    if (!full[i].ok()) {
+      if (full[i].status().code() == StatusCode::kCancelled) return full[i].status();
+      continue;
+    }
+    if (full[i]->status == ResultStatus::kFailed) continue;
+    const bool duplicate = std::any_of(out.instances.begin(), out.instances.end(), [&](const FoundInstance& o) {
+      return Horizontal(o.report.T_world_base, full[i]->T_world_base) < apart;
+    });
+    if (!duplicate) out.instances.push_back({std::move(*full[i]), distinct[i].detection_score});
+  }
+  out.stages_run.push_back(fmt::format("arref-icp-x{}", distinct.size()));
   if (out.instances.empty())
-    out.status_reason = fits.empty() ? "no candidate base was found in the map"
-                                     : fmt::format("none of the {} candidate bases explained the robot (best: {})", fits.size(),
-                                                   fits.front().report.status_reason);
+    out.status_reason = fitted == 0 ? "no candidate base was found in the map"
+                                    : fmt::format("none of the {} candidate bases explained the robot (best: {})", fitted,
+                                                  best_reason.empty() ? "a LOW_CONFIDENCE fit that did not hold" : best_reason);
   stages.Stop();
   Finish(hint, &out);
   if (progress) progress("done", 1.0);

@@ -25,6 +25,7 @@ struct ServerLimits {
   std::size_t max_surfaces_per_session = 4000;
   std::size_t max_vertices_per_session = 4'000'000;
   std::size_t max_requests_per_session = 8;       // accepted and not yet answered
+  std::size_t max_map_triangles = 1'000'000;      // a request with no seed searches the whole map: at most this
   std::size_t max_send_queue_bytes = 8u << 20;    // unsent replies before the session is dropped
   std::size_t max_send_queue_messages = 4096;
 };

@@ -331,6 +331,15 @@ std::shared_ptr<Job> Session::MakeJob(const pb::RegisterRequest& m) {
   }
   (*job)->session_id = id_;
   (*job)->scene_world = spatial_.MergedWorld();
+  // A seedless search takes the whole map: its size is bounded (the surfaces stay).
+  const std::size_t triangles = (*job)->scene_world.triangles.size();
+  if ((*job)->seedless && triangles > ctx_.config.limits.max_map_triangles) {
+    SendError(pb::ERROR_CODE_LIMIT_EXCEEDED,
+              fmt::format("the map holds {} triangles, over limits.max_map_triangles = {} for a search of the whole map; "
+                          "send a seed (SeedPose or RegisterRequest.seed) or remove surfaces",
+                          triangles, ctx_.config.limits.max_map_triangles), rid);
+    return nullptr;
+  }
   AttachCallbacks(**job);
   return std::move(*job);
 }
@@ -354,8 +363,10 @@ void Session::AttachCallbacks(Job& job) {
                                     .session_id = done.session_id,
                                     .queue_ms = outcome.queue_ms,
                                     .server_ms = MsSince(done.accepted_at)};
-    const auto frame =
-        wire::SharedFrame(wire::ResultMessage(header, outcome.report, outcome.status, done.result_frame));
+    pb::ServerMessage result = wire::ResultMessage(header, outcome.report, outcome.status, done.result_frame);
+    if (outcome.seedless)
+      wire::FillCandidates(outcome.instances, outcome.primary, done.result_frame, result.mutable_result());
+    const auto frame = wire::SharedFrame(result);
     spdlog::info("session {}: request {} {} ({:.0f} ms queued, {:.0f} ms running){}", done.session_id, done.request_id,
                  outcome.report ? "done" : outcome.status.ToString(), outcome.queue_ms, outcome.run_ms,
                  weak.expired() ? "; session gone, result dropped" : "");

@@ -100,5 +100,21 @@ TEST(Seedless, ArrefAutoRefusesASeededRequestAndAnEmptyMap) {
   EXPECT_EQ(RegisterWholeMap(*room.side, TriangleMesh{}, options).status().code(), StatusCode::kFailedPrecondition);
 }
 
+#ifdef ARREF_WITH_PCL
+// The paper's proposal as a baseline: one candidate at most, and never OK (it compares no
+// alternative poses, so a nearby wrong fit cannot be ruled out).
+TEST(Seedless, SlidingBoxBaselineGivesAtMostOneCandidateNeverOk) {
+  const Room room = MakeRoom(1, 6);
+  RegistrationOptions options;
+  options.method = Method::kSlidingBoxShot;
+  ASSERT_OK_AND_ASSIGN(const WholeMapReport report, RegisterWholeMap(*room.side, room.map, options));
+  EXPECT_EQ(report.method, "sliding-box-shot");
+  EXPECT_LE(report.instances.size(), 1u);
+  EXPECT_NE(report.status, ResultStatus::kOk);
+  EXPECT_TRUE(std::any_of(report.stages_run.begin(), report.stages_run.end(),
+                          [](const std::string& s) { return s.rfind("boxes-", 0) == 0; }));
+}
+#endif
+
 }  // namespace
 }  // namespace arref

@@ -371,6 +371,9 @@ Result<WholeMapReport> WholeMapOnce(const RobotSide& robot, const TriangleMesh& 
   if (!box.valid()) return Status::FailedPrecondition("the map is empty");
   const Vec3 centre = (0.5 * (box.min + box.max)).cast<double>();
   RegistrationOptions once = options;
+  // The paper's segmentation keeps the cluster nearest the seed: with no seed it would keep
+  // whatever stands at the map's centre, so the global methods align against the whole map.
+  once.segmentation.enabled = false;
   once.crop_radius_m = 0.5 * (box.max - box.min).cast<double>().norm() + 0.1;
   // As dense as a 2 m crop's samples (about 25 m^2 of surface), within the map limit.
   const double area = scene_world.SurfaceArea();

@@ -567,10 +567,20 @@ TEST(ServerIntegration, ClearErrorsForBadRequests) {
   ASSERT_EQ(hello.hello_reply().robots_size(), 1);
   EXPECT_EQ(hello.hello_reply().robots(0).id(), "kr5");
   EXPECT_EQ(hello.hello_reply().robots(0).joint_names_size(), 6);
-  h.Request(1);
+  {  // a method that needs a seed, with none: NO_SEED
+    pb::ClientMessage seeded;
+    seeded.mutable_register_request()->set_request_id(1);
+    seeded.mutable_register_request()->set_robot_id("kr5");
+    seeded.mutable_register_request()->set_method("pcl-icp");
+    h.Send(seeded);
+  }
   auto e = h.AwaitError();
   EXPECT_EQ(e.error().code(), pb::ERROR_CODE_NO_SEED);
   EXPECT_EQ(e.error().request_id(), 1u);
+  h.Request(11);  // no seed and no method: a search of the whole map, which holds nothing yet
+  e = h.AwaitError();
+  EXPECT_EQ(e.error().code(), pb::ERROR_CODE_NO_SCENE);
+  EXPECT_EQ(e.error().request_id(), 11u);
   h.Seed(Scene(1).seeds[0]);
   h.Request(2);
   e = h.AwaitError();

@@ -1,5 +1,6 @@
 #include "frame_decoder.h"
 
+#include <algorithm>
 #include <cstring>
 
 #include "wire.h"
@@ -19,7 +20,14 @@ std::span<std::uint8_t> FrameDecoder::Buffer(std::size_t min_bytes) {
     end_ -= begin_;
     begin_ = 0;
   }
-  if (buf_.size() - end_ < min_bytes) buf_.resize(end_ + min_bytes);
+  if (buf_.size() - end_ < min_bytes) {
+    // Once a frame's length is known, room for all of it is made at once: growing by doubling
+    // would hold up to twice a large frame.
+    const FrameHeader h = DecodeFrameHeader(buf_.data() + begin_, end_ - begin_, max_body_bytes_);
+    if (h.state == FrameHeader::State::kComplete && skip_left_ == 0)
+      buf_.reserve(std::max<std::size_t>(end_ + min_bytes, h.header_bytes + h.body_bytes + min_bytes));
+    buf_.resize(end_ + min_bytes);
+  }
   return {buf_.data() + end_, buf_.size() - end_};
 }
 
@@ -31,8 +39,29 @@ void FrameDecoder::Append(std::string_view bytes) {
   Commit(bytes.size());
 }
 
+std::uint64_t FrameDecoder::PendingBodyBytes() const {
+  if (error_.kind != Frame::Kind::kNeedMore || skip_left_ > 0) return 0;
+  const FrameHeader h = DecodeFrameHeader(buf_.data() + begin_, end_ - begin_, max_body_bytes_);
+  return h.state == FrameHeader::State::kComplete ? h.body_bytes : 0;
+}
+
+void FrameDecoder::SkipNext() {
+  if (error_.kind != Frame::Kind::kNeedMore || skip_left_ > 0) return;
+  const FrameHeader h = DecodeFrameHeader(buf_.data() + begin_, end_ - begin_, max_body_bytes_);
+  if (h.state != FrameHeader::State::kComplete) return;
+  skip_left_ = h.header_bytes + h.body_bytes;
+  skip_body_ = h.body_bytes;
+}
+
 FrameDecoder::Frame FrameDecoder::Next() {
   if (error_.kind != Frame::Kind::kNeedMore) return error_;
+  if (skip_left_ > 0) {
+    const std::size_t n = static_cast<std::size_t>(std::min<std::uint64_t>(skip_left_, end_ - begin_));
+    begin_ += n;
+    skip_left_ -= n;
+    if (skip_left_ > 0) return Frame{};
+    return Frame{.kind = Frame::Kind::kSkipped, .body = {}, .body_bytes = skip_body_};
+  }
   const FrameHeader h = DecodeFrameHeader(buf_.data() + begin_, end_ - begin_, max_body_bytes_);
   Frame f;
   switch (h.state) {

@@ -26,13 +26,24 @@ class FrameDecoder {
   void Append(std::string_view bytes);
 
   struct Frame {
-    enum class Kind { kNeedMore, kFrame, kTooLarge, kBadVarint } kind = Kind::kNeedMore;
+    enum class Kind { kNeedMore, kFrame, kTooLarge, kBadVarint, kSkipped } kind = Kind::kNeedMore;
     std::string_view body;         // kFrame: valid until the next Buffer/Append
-    std::uint64_t body_bytes = 0;  // kFrame, kTooLarge: the declared length
+    std::uint64_t body_bytes = 0;  // kFrame, kTooLarge, kSkipped: the declared length
   };
   // The next complete frame, or why there is none. kTooLarge and kBadVarint are final: the
   // stream cannot be resynchronised, so they are returned again on every later call.
   Frame Next();
+
+  // The declared body length of the next frame once its length prefix has arrived (and is
+  // within the maximum), else 0.
+  std::uint64_t PendingBodyBytes() const;
+  // Drops the next frame, whose prefix has arrived, without buffering it: its bytes are
+  // discarded as they come, and Next() returns kSkipped once the last one has passed. For a
+  // frame the reader cannot take now (e.g. over a memory budget) without losing the stream.
+  void SkipNext();
+  // The largest frame body accepted from now on (e.g. larger after a handshake).
+  void set_max_body_bytes(std::uint64_t max_body_bytes) { max_body_bytes_ = max_body_bytes; }
+  bool skipping() const { return skip_left_ > 0; }
 
   std::size_t buffered_bytes() const { return end_ - begin_; }
   std::size_t capacity() const { return buf_.size(); }
@@ -44,6 +55,8 @@ class FrameDecoder {
   std::size_t begin_ = 0;  // first unconsumed byte
   std::size_t end_ = 0;    // one past the last received byte
   Frame error_;            // set once the stream is broken
+  std::uint64_t skip_left_ = 0;   // bytes of a skipped frame still to discard
+  std::uint64_t skip_body_ = 0;   // its declared body length
 };
 
 }  // namespace arref::wire

@@ -49,7 +49,10 @@ Result<FrameConvention> FromProto(pb::FrameConvention frame) {
   switch (frame) {
     case pb::FRAME_CONVENTION_ROS: return FrameConvention::kRos;
     case pb::FRAME_CONVENTION_UNITY: return FrameConvention::kUnity;
-    default: return Status::InvalidArgument("frame convention not set (UNITY or ROS required)");
+    case pb::FRAME_CONVENTION_UNSPECIFIED: return Status::InvalidArgument("frame convention not set (UNITY or ROS required)");
+    default:
+      return Status::InvalidArgument(
+          fmt::format("frame convention {} is not one of UNITY (1) or ROS (2)", static_cast<int>(frame)));
   }
 }
 

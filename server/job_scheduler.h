@@ -1,5 +1,9 @@
 // Registration jobs: a bounded queue feeding a fixed pool of worker threads. No networking
 // here; sessions hand in jobs with callbacks and get progress and the outcome back.
+//
+// Fair order: each session has its own FIFO queue and workers take jobs round-robin across
+// the sessions that have any queued (one job per session per turn), so one session's full
+// request window cannot sit ahead of everyone else's. A session's own jobs keep their order.
 #pragma once
 
 #include <atomic>
@@ -8,6 +12,7 @@
 #include <cstdint>
 #include <deque>
 #include <functional>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <optional>
@@ -24,6 +29,7 @@
 #include "arref/pipeline/seedless.h"
 #include "arref/robot/robot_model.h"
 #include "arref/base/status.h"
+#include "memory_budget.h"
 
 namespace arref::server {
 
@@ -53,6 +59,7 @@ struct Job {
   // runner passes it to the pipeline, which returns Status::Cancelled.
   CancelToken cancel;
   std::atomic<bool> finished{false};  // its outcome is being delivered: too late to cancel
+  MemoryBudget::Reservation memory;   // its charge on the server's budget, until it is destroyed
 
   // Called from worker threads (or the thread that cancels a queued job). on_done is called
   // exactly once per accepted job.
@@ -63,6 +70,14 @@ struct Job {
 // Runs a job to completion on a worker thread; must honour job.cancel.
 using JobRunner = std::function<JobOutcome(Job& job)>;
 
+// What a session is told when its job is queued (Accepted) and what the logs show.
+struct QueueInfo {
+  std::size_t position = 0;          // jobs that run before this one in round-robin order, as queued now
+  double estimated_wait_ms = 0.0;    // from the jobs ahead, the running ones and recent run times
+  double session_queue_ms = 0.0;     // mean queue wait of this session's earlier jobs (0: none yet)
+  std::size_t session_jobs_started = 0;
+};
+
 class JobScheduler {
  public:
   JobScheduler(std::size_t workers, std::size_t queue_capacity, JobRunner runner);
@@ -71,8 +86,9 @@ class JobScheduler {
   JobScheduler& operator=(const JobScheduler&) = delete;
 
   enum class SubmitResult { kQueued, kFull, kClosed };
-  // position: jobs waiting ahead of this one.
-  SubmitResult Submit(std::shared_ptr<Job> job, std::size_t* position);
+  // position: jobs that will start before this one (round-robin order as queued now; a
+  // session that queues later can still take its turn ahead of this job's later rounds).
+  SubmitResult Submit(std::shared_ptr<Job> job, std::size_t* position, QueueInfo* info = nullptr);
 
   enum class CancelResult { kRemovedFromQueue, kFlaggedRunning, kNotFound };
   // A job removed from the queue is answered by the caller via on_done (see CancelQueued).
@@ -92,14 +108,29 @@ class JobScheduler {
   void Join();
 
  private:
+  struct SessionWaits {
+    std::size_t started = 0;
+    double total_ms = 0.0;
+    double max_ms = 0.0;
+  };
+
   void WorkerLoop(int index);
-  std::shared_ptr<Job> Pop();
+  std::shared_ptr<Job> Pop(double* waited_ms, SessionWaits* waits);
+  std::size_t PositionOf(std::uint64_t session_id) const;  // of the session's last queued job
+  void EraseQueued(std::uint64_t session_id, std::deque<std::shared_ptr<Job>>::iterator it);
+  void RecordRunMs(double ms);
+  static void Deliver(Job& job, const JobOutcome& outcome);
 
   JobRunner runner_;
   std::size_t capacity_;
+  std::size_t workers_;
   mutable std::mutex mu_;
   std::condition_variable cv_;
-  std::deque<std::shared_ptr<Job>> queue_;
+  std::map<std::uint64_t, std::deque<std::shared_ptr<Job>>> queues_;  // by session, never empty
+  std::deque<std::uint64_t> turns_;  // sessions with queued jobs, whose turn comes first at the front
+  std::size_t queued_ = 0;
+  std::map<std::uint64_t, SessionWaits> waits_;  // by session, until it is cancelled
+  std::deque<double> recent_run_ms_;             // the last few run times, for wait estimates
   std::vector<std::shared_ptr<Job>> running_;
   bool closed_ = false;
   std::function<void()> drained_;

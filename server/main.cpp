@@ -1,6 +1,7 @@
 // arref-server: registration service for HoloLens headsets (see server.h, config/arref-server.yaml).
 #include <CLI/CLI.hpp>
 #include <spdlog/sinks/stdout_color_sinks.h>
+#include <malloc.h>
 #include <spdlog/spdlog.h>
 
 #include <optional>
@@ -57,6 +58,10 @@ void Apply(const Overrides& o, ServerConfig& c) {
 }  // namespace
 
 int main(int argc, char** argv) {
+  // Blocks of 1 MiB and more (frames, surfaces, scene snapshots) go straight to the OS and back
+  // when freed, so the process's RSS follows what the memory budget holds; glibc's adaptive
+  // threshold would otherwise keep freed frames resident.
+  mallopt(M_MMAP_THRESHOLD, 1 << 20);
   CLI::App app{"arref-server: registers robot models to HoloLens spatial meshes for connected headsets"};
   Overrides overrides;
   AddFlags(app, overrides);

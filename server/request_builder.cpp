@@ -11,9 +11,10 @@ namespace pb = wire::pb;
 
 // Range check of an optional override; the message names the field and its range.
 template <typename T>
-Status CheckRange(const char* field, T value, T lo, T hi) {
-  if (!(value >= lo && value <= hi))
-    return Status::InvalidArgument(fmt::format("params.{} = {} is outside [{}, {}]", field, value, lo, hi));
+Status CheckRange(const ParamRange& range, T value) {
+  if (!(value >= static_cast<T>(range.min) && value <= static_cast<T>(range.max)))
+    return Status::InvalidArgument(fmt::format("params.{} = {} is outside [{}, {}]", range.name, value,
+                                               static_cast<T>(range.min), static_cast<T>(range.max)));
   return Status::Ok();
 }
 
@@ -38,19 +39,19 @@ Result<RegistrationOptions> RequestOptions(const pb::RegisterRequest& m, const R
   }
   const pb::RegistrationParams& p = m.params();
   if (p.has_crop_radius_m()) {
-    ARREF_RETURN_IF_ERROR(CheckRange("crop_radius_m", p.crop_radius_m(), 0.01, 50.0));
+    ARREF_RETURN_IF_ERROR(CheckRange(kCropRadiusRange, p.crop_radius_m()));
     o.crop_radius_m = p.crop_radius_m();
   }
   if (p.has_scene_samples()) {
-    ARREF_RETURN_IF_ERROR(CheckRange<std::uint32_t>("scene_samples", p.scene_samples(), 3, 2'000'000));
+    ARREF_RETURN_IF_ERROR(CheckRange(kSceneSamplesRange, p.scene_samples()));
     o.scene_samples = p.scene_samples();
   }
   if (p.has_icp_max_correspondence_m()) {
-    ARREF_RETURN_IF_ERROR(CheckRange("icp_max_correspondence_m", p.icp_max_correspondence_m(), 1e-4, 10.0));
+    ARREF_RETURN_IF_ERROR(CheckRange(kIcpMaxCorrespondenceRange, p.icp_max_correspondence_m()));
     o.icp.max_correspondence_m = p.icp_max_correspondence_m();
   }
   if (p.has_icp_max_iterations()) {
-    ARREF_RETURN_IF_ERROR(CheckRange<std::uint32_t>("icp_max_iterations", p.icp_max_iterations(), 1, 100'000));
+    ARREF_RETURN_IF_ERROR(CheckRange(kIcpMaxIterationsRange, p.icp_max_iterations()));
     o.icp.max_iterations = static_cast<int>(p.icp_max_iterations());
   }
   return o;
@@ -64,10 +65,16 @@ Result<JointValues> RequestJoints(const pb::RegisterRequest& m, const ServedRobo
     if (!j.ok()) return j.status().WithContext("RegisterRequest.joints");
     given = std::move(*j);
   } else if (session.joints) {
-    if (auto it = session.joints->find(m.robot_id()); it != session.joints->end())
-      given = it->second;
-    else if (auto any = session.joints->find(""); any != session.joints->end())
-      given = any->second;
+    auto it = session.joints->find(m.robot_id());
+    if (it == session.joints->end()) it = session.joints->find("");
+    if (it != session.joints->end()) {
+      if (!it->second.rejected.empty())
+        return Status::InvalidArgument(fmt::format(
+            "RegisterRequest: the session's latest JointState for robot '{}' was rejected ({}); the request does "
+            "not run on other joints: send a valid JointState, or joints in the request",
+            it->first.empty() ? "\"\" (every robot)" : it->first, it->second.rejected));
+      given = it->second.values;
+    }
   }
   auto joints = robots.ResolveJoints(robot, given);
   if (!joints.ok()) return joints.status().WithContext("joints");
@@ -128,9 +135,10 @@ Result<std::shared_ptr<Job>> BuildJob(const pb::RegisterRequest& m, const RobotR
   if (job->seedless && m.method().empty()) job->options.method = Method::kArrefAuto;
   if (const MethodInfo* info = FindMethod(job->options.method); info && info->seedless) job->seedless = true;
   ARREF_ASSIGN_OR_RETURN(job->hint, RequestHint(m));
-  // An unrecognised result frame is not an error: the result comes in the seed's frame.
   if (m.result_frame() != pb::FRAME_CONVENTION_UNSPECIFIED) {
-    if (auto result_frame = wire::FromProto(m.result_frame()); result_frame.ok()) frame = *result_frame;
+    auto result_frame = wire::FromProto(m.result_frame());
+    if (!result_frame.ok()) return result_frame.status().WithContext("RegisterRequest.result_frame");
+    frame = *result_frame;
   }
   job->request_id = m.request_id();
   job->robot_id = m.robot_id();

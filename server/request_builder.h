@@ -24,11 +24,33 @@ namespace arref::server {
 // RegisterRequest.head_path holds at most this many positions (arref.proto).
 constexpr std::size_t kMaxHeadPathPositions = 10000;
 
+// The allowed range of each RegistrationParams override (inclusive), checked here and
+// announced in HelloReply.limits.params.
+struct ParamRange {
+  const char* name;
+  double min;
+  double max;
+};
+inline constexpr ParamRange kCropRadiusRange{"crop_radius_m", 0.01, 50.0};
+inline constexpr ParamRange kSceneSamplesRange{"scene_samples", 3, 2'000'000};
+inline constexpr ParamRange kIcpMaxCorrespondenceRange{"icp_max_correspondence_m", 1e-4, 10.0};
+inline constexpr ParamRange kIcpMaxIterationsRange{"icp_max_iterations", 1, 100'000};
+inline constexpr ParamRange kParamRanges[] = {kCropRadiusRange, kSceneSamplesRange, kIcpMaxCorrespondenceRange,
+                                              kIcpMaxIterationsRange};
+
+// The session's latest JointState for one robot id: its values, or why it was rejected (a
+// rejected state is kept so that requests which would use it fail instead of running on
+// defaults; arref.proto, JointState).
+struct SessionJoints {
+  JointValues values;
+  std::string rejected;  // non-empty: the rejection's message
+};
+
 // What a session knows when a request arrives, used where the request leaves a field unset.
 struct SessionDefaults {
   std::optional<Iso3> seed;                                  // last SeedPose
   FrameConvention seed_frame = FrameConvention::kUnity;      // its frame: results default to it
-  const std::map<std::string, JointValues>* joints = nullptr;  // JointState by robot id ("": any)
+  const std::map<std::string, SessionJoints>* joints = nullptr;  // JointState by robot id ("": any)
 };
 
 // The configured options overridden by the request's method, head path and params, each
@@ -36,7 +58,8 @@ struct SessionDefaults {
 Result<RegistrationOptions> RequestOptions(const wire::pb::RegisterRequest& m, const RegistrationOptions& configured);
 
 // The complete joint state of the request: its own joints, else the session's state for the
-// robot, else the session's state for any robot, over the robot's defaults.
+// robot, else the session's state for any robot, over the robot's defaults. A session state
+// that was rejected fails the request (kInvalidArgument naming it).
 Result<JointValues> RequestJoints(const wire::pb::RegisterRequest& m, const ServedRobot& robot,
                                   const RobotRegistry& robots, const SessionDefaults& session);
 

@@ -7,6 +7,7 @@
 #include <csignal>
 #include <iostream>
 #include <map>
+#include <set>
 #include <mutex>
 #include <thread>
 
@@ -71,9 +72,17 @@ struct Server::Impl {
   explicit Impl(ServerConfig c, std::unique_ptr<RobotRegistry> r)
       : config(std::move(c)),
         robots(std::move(r)),
+        memory(config.limits.memory_budget_bytes),
         jobs(static_cast<std::size_t>(config.workers), config.queue_size,
              [this](Job& job) { return RunRegistrationJob(job, *robots); }),
-        ctx{config, *robots, jobs, hub, shutting_down, [this](std::uint64_t id) { OnSessionClosed(id); },
+        ctx{config,
+            *robots,
+            jobs,
+            hub,
+            shutting_down,
+            memory,
+            [this](std::uint64_t id) { return AdmitSession(id); },
+            [this](std::uint64_t id) { OnSessionClosed(id); },
             ARREF_VERSION},
         strand(net::make_strand(ioc)),
         acceptor(strand),
@@ -91,6 +100,10 @@ struct Server::Impl {
   Status Listen();
   void Accept();
   void OnAccept(const boost::system::error_code& ec, tcp::socket socket);
+  // Registers a new connection (pending until Hello); an error refuses it.
+  Status AddConnection(const std::shared_ptr<Session>& session, const std::string& address,
+                       std::shared_ptr<Session>* evicted);
+  Status AdmitSession(std::uint64_t id);
   void OnSessionClosed(std::uint64_t id);
   std::vector<std::shared_ptr<Session>> SessionsSnapshot();
   void ArmWatchdog(std::chrono::microseconds interval);
@@ -102,11 +115,13 @@ struct Server::Impl {
   void CloseSessions();
   void OnSessionsClosed();
   void StopServing();
+  void RunIo();
 
   ServerConfig config;
   std::unique_ptr<RobotRegistry> robots;
   SubscriberHub hub;
   std::atomic<bool> shutting_down{false};
+  MemoryBudget memory;  // outlives everything that holds a reservation (jobs, sessions)
   JobScheduler jobs;
   ServerContext ctx;
   // Declared after everything sessions refer to, so handlers die first.
@@ -121,8 +136,18 @@ struct Server::Impl {
   bool closing_sessions = false;
   bool stopped = false;
   std::atomic<std::uint16_t> port{0};
+  // Every open connection; `pending` (ordered by id, so oldest first) those still owing Hello.
+  // Idle sockets are counted apart from sessions so that they cannot crowd out headsets.
+  struct Connection {
+    std::shared_ptr<Session> session;
+    std::string address;
+    bool admitted = false;  // past Hello
+  };
   std::mutex sessions_mu;
-  std::map<std::uint64_t, std::shared_ptr<Session>> sessions;
+  std::map<std::uint64_t, Connection> sessions;
+  std::set<std::uint64_t> pending;
+  std::size_t admitted = 0;  // connections past Hello
+  std::map<std::string, std::size_t> per_peer;
   std::uint64_t next_session_id = 1;
 };
 
@@ -157,28 +182,72 @@ void Server::Impl::OnAccept(const boost::system::error_code& ec, tcp::socket soc
   }
   boost::system::error_code ignored;
   socket.set_option(tcp::no_delay(true), ignored);  // small replies (Accepted, Progress) go out at once
+  const auto endpoint = socket.remote_endpoint(ignored);
+  const std::string address = ignored ? "?" : endpoint.address().to_string();
   std::shared_ptr<Session> session;
-  bool full = false;
+  std::shared_ptr<Session> evicted;
+  Status added;
   {
     std::lock_guard lock(sessions_mu);
-    full = sessions.size() >= config.limits.max_sessions;
     session = std::make_shared<Session>(std::move(socket), ctx, next_session_id++);
-    if (!full) sessions[session->id()] = session;
+    added = AddConnection(session, address, &evicted);
   }
-  if (full)
-    session->Reject(wire::pb::ERROR_CODE_LIMIT_EXCEEDED,
-                    fmt::format("too many sessions: {} connected, limit {} (limits.max_sessions)",
-                                config.limits.max_sessions, config.limits.max_sessions));
+  if (evicted)
+    evicted->Reject(wire::pb::ERROR_CODE_HANDSHAKE_TIMEOUT,
+                    fmt::format("closed before Hello: {} connections are waiting for Hello (limits.max_pending_connections) "
+                                "and this was the oldest", config.limits.max_pending_connections));
+  if (!added.ok())
+    session->Reject(wire::pb::ERROR_CODE_LIMIT_EXCEEDED, added.message());
   else
     session->Start();
   Accept();
+}
+
+// Under sessions_mu. A full pending set drops its oldest member rather than refusing the new
+// connection: a headset that says Hello at once always gets in, however many idle sockets
+// there are, as long as they come from fewer than all addresses' caps.
+Status Server::Impl::AddConnection(const std::shared_ptr<Session>& session, const std::string& address,
+                                   std::shared_ptr<Session>* evicted) {
+  const ServerLimits& l = config.limits;
+  if (per_peer[address] >= l.max_connections_per_peer)
+    return Status::ResourceExhausted(fmt::format("too many connections from {}: {} open, limit {} "
+                                                 "(limits.max_connections_per_peer)", address, per_peer[address],
+                                                 l.max_connections_per_peer));
+  if (pending.size() >= l.max_pending_connections) {
+    const std::uint64_t oldest = *pending.begin();
+    pending.erase(pending.begin());
+    *evicted = sessions.at(oldest).session;
+  }
+  ++per_peer[address];
+  sessions[session->id()] = Connection{.session = session, .address = address, .admitted = false};
+  pending.insert(session->id());
+  return Status::Ok();
+}
+
+Status Server::Impl::AdmitSession(std::uint64_t id) {
+  std::lock_guard lock(sessions_mu);
+  const auto it = sessions.find(id);
+  if (it == sessions.end() || !pending.count(id))
+    return Status::ResourceExhausted("this connection was dropped while it waited for Hello");
+  if (admitted >= config.limits.max_sessions)
+    return Status::ResourceExhausted(fmt::format("too many sessions: {} connected, limit {} (limits.max_sessions)",
+                                                 admitted, config.limits.max_sessions));
+  pending.erase(id);
+  it->second.admitted = true;
+  ++admitted;
+  return Status::Ok();
 }
 
 void Server::Impl::OnSessionClosed(std::uint64_t id) {
   bool none_left = false;
   {
     std::lock_guard lock(sessions_mu);
-    sessions.erase(id);
+    if (const auto it = sessions.find(id); it != sessions.end()) {
+      pending.erase(id);
+      if (it->second.admitted) --admitted;
+      if (--per_peer[it->second.address] == 0) per_peer.erase(it->second.address);
+      sessions.erase(it);
+    }
     none_left = sessions.empty();
   }
   if (none_left && shutting_down) net::post(strand, [this] { OnSessionsClosed(); });
@@ -187,7 +256,7 @@ void Server::Impl::OnSessionClosed(std::uint64_t id) {
 std::vector<std::shared_ptr<Session>> Server::Impl::SessionsSnapshot() {
   std::lock_guard lock(sessions_mu);
   std::vector<std::shared_ptr<Session>> out;
-  for (auto& [id, s] : sessions) out.push_back(s);
+  for (auto& [id, c] : sessions) out.push_back(c.session);
   return out;
 }
 
@@ -276,6 +345,19 @@ void Server::Impl::StopServing() {
   ioc.stop();
 }
 
+// Sessions catch what their handlers throw; this is the last line, so that one handler's
+// exception (std::bad_alloc included) never ends the process for everyone.
+void Server::Impl::RunIo() {
+  while (true) {
+    try {
+      ioc.run();
+      return;
+    } catch (const std::exception& e) {
+      spdlog::error("an I/O handler threw (serving goes on): {}", e.what());
+    }
+  }
+}
+
 // ---------------------------------------------------------------- Server
 
 Server::Server(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
@@ -309,8 +391,8 @@ Status Server::Run() {
     s.ArmWatchdog(*interval);
   }
   std::vector<std::thread> io_threads;
-  for (int i = 1; i < s.config.io_threads; ++i) io_threads.emplace_back([&s] { s.ioc.run(); });
-  s.ioc.run();
+  for (int i = 1; i < s.config.io_threads; ++i) io_threads.emplace_back([&s] { s.RunIo(); });
+  s.RunIo();
   for (auto& t : io_threads) t.join();
   s.jobs.Join();
   spdlog::info("arref-server stopped");

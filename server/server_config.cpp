@@ -65,7 +65,7 @@ std::string Resolve(const std::string& path, const std::string& base_dir) {
 
 Status ReadServer(const YAML::Node& n, ServerConfig& c) {
   ARREF_RETURN_IF_ERROR(CheckKeys(n, "server", {"address", "port", "io_threads", "workers", "queue_size",
-                                                "idle_timeout_s", "send_timeout_s", "shutdown_grace_s",
+                                                "idle_timeout_s", "hello_timeout_s", "frame_timeout_s", "send_timeout_s", "shutdown_grace_s",
                                                 "auth_token", "log_level"}));
   Read(n, "address", c.address);
   Read(n, "port", c.port);
@@ -73,6 +73,8 @@ Status ReadServer(const YAML::Node& n, ServerConfig& c) {
   Read(n, "workers", c.workers);
   Read(n, "queue_size", c.queue_size);
   Read(n, "idle_timeout_s", c.idle_timeout_s);
+  Read(n, "hello_timeout_s", c.hello_timeout_s);
+  Read(n, "frame_timeout_s", c.frame_timeout_s);
   Read(n, "send_timeout_s", c.send_timeout_s);
   Read(n, "shutdown_grace_s", c.shutdown_grace_s);
   Read(n, "auth_token", c.auth_token);
@@ -81,13 +83,20 @@ Status ReadServer(const YAML::Node& n, ServerConfig& c) {
 }
 
 Status ReadLimits(const YAML::Node& n, ServerLimits& l) {
-  ARREF_RETURN_IF_ERROR(CheckKeys(n, "limits", {"max_message_bytes", "max_sessions", "max_surfaces_per_session",
-                                                "max_vertices_per_session", "max_requests_per_session",
-                                                "max_send_queue_bytes", "max_send_queue_messages", "max_map_triangles"}));
+  ARREF_RETURN_IF_ERROR(CheckKeys(
+      n, "limits", {"max_message_bytes", "max_sessions", "max_pending_connections", "max_connections_per_peer",
+                    "max_surfaces_per_session", "max_vertices_per_session", "max_triangles_per_session",
+                    "max_mesh_bytes_per_session", "memory_budget_bytes", "max_requests_per_session",
+                    "max_send_queue_bytes", "max_send_queue_messages", "max_map_triangles"}));
   Read(n, "max_message_bytes", l.max_message_bytes);
   Read(n, "max_sessions", l.max_sessions);
+  Read(n, "max_pending_connections", l.max_pending_connections);
+  Read(n, "max_connections_per_peer", l.max_connections_per_peer);
   Read(n, "max_surfaces_per_session", l.max_surfaces_per_session);
   Read(n, "max_vertices_per_session", l.max_vertices_per_session);
+  Read(n, "max_triangles_per_session", l.max_triangles_per_session);
+  Read(n, "max_mesh_bytes_per_session", l.max_mesh_bytes_per_session);
+  Read(n, "memory_budget_bytes", l.memory_budget_bytes);
   Read(n, "max_requests_per_session", l.max_requests_per_session);
   Read(n, "max_send_queue_bytes", l.max_send_queue_bytes);
   Read(n, "max_send_queue_messages", l.max_send_queue_messages);
@@ -177,10 +186,16 @@ Status ValidateServerConfig(const ServerConfig& c) {
   if (c.workers < 1 || c.workers > 256) return Status::InvalidArgument("server.workers must be 1..256");
   if (c.io_threads < 1 || c.io_threads > 64) return Status::InvalidArgument("server.io_threads must be 1..64");
   if (c.queue_size < 1) return Status::InvalidArgument("server.queue_size must be >= 1");
-  if (!(c.idle_timeout_s > 0) || !(c.send_timeout_s > 0) || !(c.shutdown_grace_s >= 0))
+  if (!(c.idle_timeout_s > 0) || !(c.send_timeout_s > 0) || !(c.shutdown_grace_s >= 0) || !(c.hello_timeout_s > 0) ||
+      !(c.frame_timeout_s > 0))
     return Status::InvalidArgument("server timeouts must be > 0 s");
   if (c.limits.max_message_bytes < 64) return Status::InvalidArgument("limits.max_message_bytes must be >= 64");
   if (c.limits.max_sessions < 1) return Status::InvalidArgument("limits.max_sessions must be >= 1");
+  if (c.limits.max_pending_connections < 1 || c.limits.max_connections_per_peer < 1)
+    return Status::InvalidArgument("limits.max_pending_connections and max_connections_per_peer must be >= 1");
+  if (c.limits.memory_budget_bytes < (64u << 20))
+    return Status::InvalidArgument(fmt::format("limits.memory_budget_bytes ({}) must be >= 64 MiB (67108864)",
+                                               c.limits.memory_budget_bytes));
   if (c.registration.model_samples < 3) return Status::InvalidArgument("registration.model_samples must be >= 3");
   const TrackingError& e = c.registration.arref_icp.tracking_error;
   if (!(e.position_m >= 0 && e.position_m <= 1) || !(e.orientation_deg >= 0 && e.orientation_deg <= 30))

@@ -21,9 +21,16 @@ struct RobotConfig {
 
 struct ServerLimits {
   std::size_t max_message_bytes = 16u << 20;      // one incoming frame
-  std::size_t max_sessions = 64;                  // concurrent connections
+  std::size_t max_sessions = 64;                  // connections past Hello
+  std::size_t max_pending_connections = 128;      // connections still owing Hello (the oldest is dropped)
+  std::size_t max_connections_per_peer = 16;      // from one IP address, pending and sessions
   std::size_t max_surfaces_per_session = 4000;
   std::size_t max_vertices_per_session = 4'000'000;
+  std::size_t max_triangles_per_session = 8'000'000;
+  std::size_t max_mesh_bytes_per_session = 128u << 20;  // vertices, triangles and per-surface records
+  // Server-wide admission budget for meshes, large frames and jobs (memory_budget.h). The
+  // default fits a 2 GiB unit (MemoryMax=2G) with room for the robot models and the allocator.
+  std::size_t memory_budget_bytes = 1024u << 20;
   std::size_t max_requests_per_session = 8;       // accepted and not yet answered
   std::size_t max_map_triangles = 1'000'000;      // a request with no seed searches the whole map: at most this
   std::size_t max_send_queue_bytes = 8u << 20;    // unsent replies before the session is dropped
@@ -37,6 +44,8 @@ struct ServerConfig {
   int workers = 2;
   std::size_t queue_size = 16;
   double idle_timeout_s = 120.0;   // no bytes from the client and nothing in flight
+  double hello_timeout_s = 5.0;    // a connection must complete Hello within this
+  double frame_timeout_s = 30.0;   // a frame, once its first byte arrived, must complete within this
   double send_timeout_s = 30.0;    // one write may take this long before the session is dropped
   double shutdown_grace_s = 30.0;  // running jobs may finish within this on SIGTERM
   std::string auth_token;          // empty: no token required

@@ -3,7 +3,9 @@
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
 #include <chrono>
+#include <new>
 
 #include "arref/base/clock.h"
 #include "convert.h"
@@ -15,7 +17,6 @@ namespace {
 namespace pb = wire::pb;
 
 constexpr std::size_t kReadChunk = 64 * 1024;
-constexpr std::size_t kMaxPingPayload = 64 * 1024;
 constexpr auto kLinger = std::chrono::seconds(2);  // time to flush a final error before closing
 
 std::chrono::milliseconds Seconds(double s) { return std::chrono::milliseconds(static_cast<long long>(s * 1000)); }
@@ -28,8 +29,10 @@ Session::Session(tcp::socket socket, ServerContext& context, std::uint64_t id)
     : socket_(std::move(socket)),
       ctx_(context),
       id_(id),
-      rx_(context.config.limits.max_message_bytes, 4 * kReadChunk),
+      rx_(std::min(kMaxHelloBytes, context.config.limits.max_message_bytes), 4 * kReadChunk),
       idle_timer_(socket_.get_executor()),
+      hello_timer_(socket_.get_executor()),
+      frame_timer_(socket_.get_executor()),
       write_timer_(socket_.get_executor()),
       linger_timer_(socket_.get_executor()) {
   boost::system::error_code ec;
@@ -43,6 +46,7 @@ void Session::Start() {
   net::dispatch(socket_.get_executor(), [self = shared_from_this()] {
     spdlog::info("session {}: connected from {}", self->id_, self->peer_);
     self->ArmIdleTimer();
+    self->ArmHelloTimer();
     self->ReadMore();
   });
 }
@@ -67,6 +71,40 @@ void Session::ArmIdleTimer() {
   });
 }
 
+// Connections that never say Hello must not hold a slot: they get hello_timeout_s.
+void Session::ArmHelloTimer() {
+  hello_timer_.expires_after(Seconds(ctx_.config.hello_timeout_s));
+  hello_timer_.async_wait([self = shared_from_this()](const boost::system::error_code& ec) {
+    if (ec || self->state_ != State::kAwaitHello) return;
+    self->FailAndClose(pb::ERROR_CODE_HANDSHAKE_TIMEOUT,
+                       fmt::format("no Hello within {} s of connecting (server.hello_timeout_s)",
+                                   self->ctx_.config.hello_timeout_s));
+  });
+}
+
+// A frame must arrive whole within frame_timeout_s of its first byte, so that a client cannot
+// hold a connection (or a buffer) by trickling one frame forever. The clock restarts with
+// every frame that completes.
+void Session::UpdateFrameTimer(bool frame_completed) {
+  if (rx_.buffered_bytes() == 0 && !rx_.skipping()) {
+    if (frame_timer_armed_) frame_timer_.cancel();
+    frame_timer_armed_ = false;
+    return;
+  }
+  if (frame_timer_armed_ && !frame_completed) return;  // the same frame is still arriving
+  frame_timer_armed_ = true;
+  frame_timer_.expires_after(Seconds(ctx_.config.frame_timeout_s));
+  frame_timer_.async_wait([self = shared_from_this()](const boost::system::error_code& ec) {
+    if (ec || self->state_ >= State::kClosing) return;
+    const std::uint64_t declared = self->rx_.PendingBodyBytes();
+    self->FailAndClose(
+        pb::ERROR_CODE_FRAME_TIMEOUT,
+        fmt::format("a message did not arrive whole within {} s of its first byte (server.frame_timeout_s): {} bytes "
+                    "received{}", self->ctx_.config.frame_timeout_s, self->rx_.buffered_bytes(),
+                    declared > 0 ? fmt::format(" of {} announced", declared) : std::string(" (length prefix incomplete)")));
+  });
+}
+
 // ---------------------------------------------------------------- reading
 
 void Session::ReadMore() {
@@ -80,24 +118,64 @@ void Session::ReadMore() {
 
 void Session::OnRead(const boost::system::error_code& ec, std::size_t bytes) {
   if (state_ >= State::kClosing) return;
-  if (ec) {
-    CloseNow(ec == net::error::eof ? "client closed the connection" : "read failed: " + ec.message());
+  if (ec) return OnReadEnd(ec);
+  try {
+    rx_.Commit(bytes);
+    ArmIdleTimer();
+    if (ProcessFrames()) ReadMore();
+  } catch (const std::bad_alloc&) {  // the buffer or a parse: the stream cannot go on
+    FailAndClose(pb::ERROR_CODE_LIMIT_EXCEEDED, "out of memory receiving a message (std::bad_alloc)");
+  }
+}
+
+// A half-closed client (shutdown(SHUT_WR)) still gets the results of its accepted requests;
+// the session closes once they are written.
+void Session::OnReadEnd(const boost::system::error_code& ec) {
+  if (ec != net::error::eof) return CloseNow("read failed: " + ec.message());
+  if (state_ == State::kReady && !in_flight_.empty()) {
+    read_closed_ = true;
+    if (frame_timer_armed_) frame_timer_.cancel();
+    spdlog::info("session {}: client closed its side; delivering {} results still in flight", id_, in_flight_.size());
     return;
   }
-  rx_.Commit(bytes);
-  ArmIdleTimer();
-  if (ProcessFrames()) ReadMore();
+  StartClosing("client closed the connection");  // sends what is queued first
+}
+
+// Large frames are charged to the memory budget as soon as their length is known; one that
+// does not fit is dropped as it arrives, with an error, and the session goes on.
+bool Session::ChargeNextFrame() {
+  if (state_ != State::kReady || frame_memory_.bytes() > 0 || rx_.skipping()) return true;
+  const std::uint64_t declared = rx_.PendingBodyBytes();
+  if (declared < kChargedFrameBytes) return true;
+  auto reserved = ctx_.memory.Reserve(static_cast<std::size_t>(declared) * kFrameExpansion,
+                                      fmt::format("a message of {} bytes", declared));
+  if (reserved.ok()) {
+    frame_memory_ = std::move(*reserved);
+    return true;
+  }
+  rx_.SkipNext();
+  SendError(pb::ERROR_CODE_LIMIT_EXCEEDED,
+            reserved.status().message() + "; the message is dropped unread and the session keeps what it had");
+  return false;
 }
 
 bool Session::ProcessFrames() {
   using Kind = wire::FrameDecoder::Frame::Kind;
+  bool completed = false;
   while (state_ < State::kClosing) {
+    ChargeNextFrame();
     const wire::FrameDecoder::Frame f = rx_.Next();
     if (f.kind == Kind::kNeedMore) break;
+    completed = true;
+    if (f.kind == Kind::kSkipped) continue;
     if (f.kind == Kind::kTooLarge) {
+      const std::size_t limit = ctx_.config.limits.max_message_bytes;
       FailAndClose(pb::ERROR_CODE_MESSAGE_TOO_LARGE,
-                   fmt::format("message of {} bytes exceeds the limit of {} bytes (limits.max_message_bytes)",
-                               f.body_bytes, ctx_.config.limits.max_message_bytes));
+                   state_ == State::kAwaitHello
+                       ? fmt::format("message of {} bytes before Hello exceeds the limit of {} bytes for it", f.body_bytes,
+                                     std::min(kMaxHelloBytes, limit))
+                       : fmt::format("message of {} bytes exceeds the limit of {} bytes (limits.max_message_bytes)",
+                                     f.body_bytes, limit));
       return false;
     }
     if (f.kind == Kind::kBadVarint) {
@@ -111,7 +189,9 @@ bool Session::ProcessFrames() {
       return false;
     }
     Handle(message);
+    frame_memory_.Release();
   }
+  if (state_ < State::kClosing) UpdateFrameTimer(completed);
   return state_ < State::kClosing;
 }
 
@@ -138,6 +218,10 @@ void Session::Handle(const pb::ClientMessage& m) {
         SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "message has no known kind (newer client?); ignored");
         break;
     }
+  } catch (const std::bad_alloc&) {  // the budget's estimates were short: drop this message only
+    spdlog::error("session {}: out of memory handling message {}", id_, static_cast<int>(m.kind_case()));
+    SendError(pb::ERROR_CODE_LIMIT_EXCEEDED,
+              "out of memory handling this message (std::bad_alloc): it is dropped, the session keeps what it had");
   } catch (const std::exception& e) {  // a bug on one message must not end the server
     spdlog::error("session {}: handling message {} threw: {}", id_, static_cast<int>(m.kind_case()), e.what());
     SendError(pb::ERROR_CODE_INTERNAL, std::string("internal error: ") + e.what());
@@ -159,11 +243,22 @@ void Session::OnHello(const pb::Hello& m) {
     FailAndClose(pb::ERROR_CODE_UNAUTHENTICATED, "auth token missing or wrong");
     return;
   }
+  if (Status admitted = ctx_.on_hello ? ctx_.on_hello(id_) : Status::Ok(); !admitted.ok()) {
+    FailAndClose(pb::ERROR_CODE_LIMIT_EXCEEDED, admitted.message());
+    return;
+  }
   state_ = State::kReady;
+  hello_timer_.cancel();
+  rx_.set_max_body_bytes(ctx_.config.limits.max_message_bytes);
   client_name_ = m.client_name();
   spdlog::info("session {}: hello from '{}' ({})", id_, client_name_, peer_);
   pb::ServerMessage reply;
-  auto* r = reply.mutable_hello_reply();
+  FillHelloReply(reply.mutable_hello_reply());
+  Send(reply);
+  if (ctx_.shutting_down) NotifyShutdown(ctx_.config.shutdown_grace_s);
+}
+
+void Session::FillHelloReply(pb::HelloReply* r) const {
   r->set_protocol_version(wire::kProtocolVersion);
   r->set_server_version(ctx_.server_version);
   r->set_session_id(id_);
@@ -179,46 +274,96 @@ void Session::OnHello(const pb::Hello& m) {
   }
   for (const auto& name : MethodNames()) r->add_methods(name);
   r->set_default_method(MethodName(ctx_.config.registration.method));
-  Send(reply);
-  if (ctx_.shutting_down) NotifyShutdown(ctx_.config.shutdown_grace_s);
+  const ServerConfig& c = ctx_.config;
+  const ServerLimits& l = c.limits;
+  pb::Limits* out = r->mutable_limits();
+  out->set_max_message_bytes(l.max_message_bytes);
+  out->set_max_hello_bytes(std::min(kMaxHelloBytes, l.max_message_bytes));
+  out->set_max_sessions(l.max_sessions);
+  out->set_max_pending_connections(l.max_pending_connections);
+  out->set_max_connections_per_peer(l.max_connections_per_peer);
+  out->set_max_surfaces_per_session(l.max_surfaces_per_session);
+  out->set_max_vertices_per_session(l.max_vertices_per_session);
+  out->set_max_triangles_per_session(l.max_triangles_per_session);
+  out->set_max_mesh_bytes_per_session(l.max_mesh_bytes_per_session);
+  out->set_memory_budget_bytes(l.memory_budget_bytes);
+  out->set_max_requests_per_session(l.max_requests_per_session);
+  out->set_queue_size(c.queue_size);
+  out->set_max_ping_payload_bytes(kMaxPingPayload);
+  out->set_max_head_path_positions(kMaxHeadPathPositions);
+  out->set_hello_timeout_s(c.hello_timeout_s);
+  out->set_frame_timeout_s(c.frame_timeout_s);
+  out->set_idle_timeout_s(c.idle_timeout_s);
+  out->set_workers(static_cast<std::uint32_t>(c.workers));
+  for (const ParamRange& range : kParamRanges) {
+    pb::ParamRange* p = out->add_params();
+    p->set_name(range.name);
+    p->set_min(range.min);
+    p->set_max(range.max);
+  }
 }
 
 void Session::OnSurfaceUpsert(const pb::SurfaceUpsert& m) {
   const std::uint64_t sid = m.surface_id();
+  // Sizes from the message, so that limits are checked before anything is converted.
+  const std::size_t vertices = static_cast<std::size_t>(std::max(m.vertices_size(), m.quantized_vertices_size())) / 3;
+  const std::size_t triangles = static_cast<std::size_t>(m.triangles_size()) / 3;
+  auto memory = AdmitSurface(sid, vertices, triangles);
+  if (!memory.ok())
+    return SendError(pb::ERROR_CODE_LIMIT_EXCEEDED, fmt::format("surface {} rejected: {}", sid, memory.status().message()),
+                     0, sid);
   auto surface = wire::SurfaceFromProto(m);
   if (!surface.ok()) {
     SendError(pb::ERROR_CODE_BAD_SURFACE, fmt::format("surface {} rejected: {}", sid, surface.status().message()), 0,
               sid);
     return;
   }
-  const auto& limits = ctx_.config.limits;
+  const auto old = spatial_.surfaces().find(sid);
+  const std::size_t old_triangles = old != spatial_.surfaces().end() ? old->second.mesh.triangles.size() : 0;
+  const std::size_t old_bytes = old != spatial_.surfaces().end() ? MeshBytes(old->second.mesh) : 0;
+  const std::size_t new_bytes = MeshBytes(surface->mesh);
+  const std::size_t new_triangles = surface->mesh.triangles.size();
+  if (Status s = spatial_.Upsert(std::move(*surface)); !s.ok())
+    return SendError(pb::ERROR_CODE_BAD_SURFACE, fmt::format("surface {} rejected: {}", sid, s.message()), 0, sid);
+  triangles_ = triangles_ - old_triangles + new_triangles;
+  mesh_bytes_ = mesh_bytes_ - old_bytes + new_bytes;
+  surface_memory_[sid] = std::move(*memory);  // releases the replaced surface's charge
+}
+
+Result<MemoryBudget::Reservation> Session::AdmitSurface(std::uint64_t sid, std::size_t vertices, std::size_t triangles) {
+  const ServerLimits& limits = ctx_.config.limits;
   const auto old = spatial_.surfaces().find(sid);
   const bool replaces = old != spatial_.surfaces().end();
   const std::size_t surfaces_after = spatial_.size() + (replaces ? 0 : 1);
   const std::size_t vertices_after =
-      spatial_.vertex_count() - (replaces ? old->second.mesh.vertices.size() : 0) + surface->mesh.vertices.size();
-  if (surfaces_after > limits.max_surfaces_per_session) {
-    SendError(pb::ERROR_CODE_LIMIT_EXCEEDED,
-              fmt::format("surface {} rejected: the session would hold {} surfaces, limit {} "
-                          "(limits.max_surfaces_per_session)", sid, surfaces_after, limits.max_surfaces_per_session),
-              0, sid);
-    return;
-  }
-  if (vertices_after > limits.max_vertices_per_session) {
-    SendError(pb::ERROR_CODE_LIMIT_EXCEEDED,
-              fmt::format("surface {} rejected: the session would hold {} vertices, limit {} "
-                          "(limits.max_vertices_per_session)", sid, vertices_after, limits.max_vertices_per_session),
-              0, sid);
-    return;
-  }
-  if (Status s = spatial_.Upsert(std::move(*surface)); !s.ok())
-    SendError(pb::ERROR_CODE_BAD_SURFACE, fmt::format("surface {} rejected: {}", sid, s.message()), 0, sid);
+      spatial_.vertex_count() - (replaces ? old->second.mesh.vertices.size() : 0) + vertices;
+  const std::size_t triangles_after = triangles_ - (replaces ? old->second.mesh.triangles.size() : 0) + triangles;
+  const std::size_t bytes = MeshBytes(vertices, triangles);
+  const std::size_t bytes_after = mesh_bytes_ - (replaces ? MeshBytes(old->second.mesh) : 0) + bytes;
+  struct Check {
+    std::size_t after, limit;
+    const char* what;
+    const char* key;
+  };
+  for (const Check& c : {Check{surfaces_after, limits.max_surfaces_per_session, "surfaces", "max_surfaces_per_session"},
+                         Check{vertices_after, limits.max_vertices_per_session, "vertices", "max_vertices_per_session"},
+                         Check{triangles_after, limits.max_triangles_per_session, "triangles", "max_triangles_per_session"},
+                         Check{bytes_after, limits.max_mesh_bytes_per_session, "mesh bytes", "max_mesh_bytes_per_session"}})
+    if (c.after > c.limit)
+      return Status::ResourceExhausted(
+          fmt::format("the session would hold {} {}, limit {} (limits.{})", c.after, c.what, c.limit, c.key));
+  return ctx_.memory.Reserve(bytes, fmt::format("a surface of {} vertices and {} triangles", vertices, triangles));
 }
 
 void Session::OnSurfaceRemove(const pb::SurfaceRemove& m) {
-  if (!spatial_.Remove(m.surface_id()))
-    SendError(pb::ERROR_CODE_UNKNOWN_SURFACE, fmt::format("surface {} is not held by this session", m.surface_id()), 0,
-              m.surface_id());
+  const auto it = spatial_.surfaces().find(m.surface_id());
+  if (it == spatial_.surfaces().end())
+    return SendError(pb::ERROR_CODE_UNKNOWN_SURFACE,
+                     fmt::format("surface {} is not held by this session", m.surface_id()), 0, m.surface_id());
+  triangles_ -= it->second.mesh.triangles.size();
+  mesh_bytes_ -= MeshBytes(it->second.mesh);
+  spatial_.Remove(m.surface_id());
+  surface_memory_.erase(m.surface_id());
 }
 
 void Session::OnSeedPose(const pb::SeedPose& m) {
@@ -230,21 +375,29 @@ void Session::OnSeedPose(const pb::SeedPose& m) {
   seed_frame_ = *frame;
 }
 
+// The latest JointState for a robot id replaces the earlier one; a rejected one is kept as
+// rejected, so that requests which would use it fail instead of running on defaults.
 void Session::OnJointState(const pb::JointState& m) {
+  const auto reject = [&](pb::ErrorCode code, const std::string& why) {
+    joints_[m.robot_id()] = SessionJoints{.values = {}, .rejected = why};
+    SendError(code, "JointState: " + why + "; requests that would use it fail until a valid JointState replaces it");
+  };
   auto joints = wire::JointsFromProto(m);
-  if (!joints.ok()) return SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "JointState: " + joints.status().message());
+  if (!joints.ok()) return reject(pb::ERROR_CODE_INVALID_ARGUMENT, joints.status().message());
   if (!m.robot_id().empty()) {
     const ServedRobot* robot = ctx_.robots.Find(m.robot_id());
     if (!robot)
       return SendError(pb::ERROR_CODE_UNKNOWN_ROBOT, fmt::format("JointState: robot '{}' is not served here (served: {})",
                                                                  m.robot_id(), ctx_.robots.Ids()));
     if (auto checked = ctx_.robots.ResolveJoints(*robot, *joints); !checked.ok())
-      return SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "JointState: " + checked.status().message());
+      return reject(pb::ERROR_CODE_INVALID_ARGUMENT, checked.status().message());
   }
-  joints_[m.robot_id()] = std::move(*joints);
+  joints_[m.robot_id()] = SessionJoints{.values = std::move(*joints), .rejected = {}};
 }
 
 void Session::OnCancel(const pb::Cancel& m) {
+  if (m.request_id() == 0)
+    return SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "Cancel.request_id must be >= 1 (0 is never a request id)");
   std::shared_ptr<Job> removed;
   switch (ctx_.jobs.Cancel(id_, m.request_id(), &removed)) {
     case JobScheduler::CancelResult::kRemovedFromQueue:
@@ -288,6 +441,9 @@ void Session::OnPing(const pb::Ping& m) {
 
 void Session::OnRegisterRequest(const pb::RegisterRequest& m) {
   const std::uint64_t rid = m.request_id();
+  if (rid == 0)
+    return SendError(pb::ERROR_CODE_INVALID_ARGUMENT,
+                     "RegisterRequest.request_id must be >= 1 (0 cannot be told from unset in the answer)");
   if (ctx_.shutting_down)
     return SendError(pb::ERROR_CODE_SHUTTING_DOWN, "the server is shutting down; request not accepted", rid);
   if (in_flight_.count(rid))
@@ -298,8 +454,8 @@ void Session::OnRegisterRequest(const pb::RegisterRequest& m) {
                                  in_flight_.size(), ctx_.config.limits.max_requests_per_session), rid);
   std::shared_ptr<Job> job = MakeJob(m);
   if (!job) return;
-  std::size_t position = 0;
-  switch (ctx_.jobs.Submit(job, &position)) {
+  QueueInfo queue;
+  switch (ctx_.jobs.Submit(job, nullptr, &queue)) {
     case JobScheduler::SubmitResult::kFull:
       spdlog::warn("session {}: request {} refused: queue full", id_, rid);
       return SendError(pb::ERROR_CODE_BUSY,
@@ -310,10 +466,14 @@ void Session::OnRegisterRequest(const pb::RegisterRequest& m) {
     case JobScheduler::SubmitResult::kQueued: break;
   }
   in_flight_.insert(rid);  // results arrive through a post, so after this handler
-  spdlog::info("session {}: request {} accepted for robot '{}' at queue position {}", id_, rid, m.robot_id(), position);
+  spdlog::info("session {}: request {} accepted for robot '{}' at queue position {} (estimated wait {:.0f} ms; this "
+               "session's earlier requests waited {:.0f} ms on average over {})", id_, rid, m.robot_id(), queue.position,
+               queue.estimated_wait_ms, queue.session_queue_ms, queue.session_jobs_started);
   pb::ServerMessage reply;
   reply.mutable_accepted()->set_request_id(rid);
-  reply.mutable_accepted()->set_queue_position(static_cast<std::uint32_t>(position));
+  reply.mutable_accepted()->set_queue_position(static_cast<std::uint32_t>(queue.position));
+  reply.mutable_accepted()->set_estimated_wait_ms(queue.estimated_wait_ms);
+  reply.mutable_accepted()->set_session_queue_ms(queue.session_queue_ms);
   Send(reply);
 }
 
@@ -329,6 +489,13 @@ std::shared_ptr<Job> Session::MakeJob(const pb::RegisterRequest& m) {
     SendError(pb::ERROR_CODE_NO_SCENE, "the session holds no surfaces: send SurfaceUpsert messages first", rid);
     return nullptr;
   }
+  auto memory = ctx_.memory.Reserve(JobBytes(mesh_bytes_, (*job)->options.scene_samples),
+                                    fmt::format("request {} (a scene of {} triangles)", rid, triangles_));
+  if (!memory.ok()) {
+    SendError(pb::ERROR_CODE_LIMIT_EXCEEDED, memory.status().message(), rid);
+    return nullptr;
+  }
+  (*job)->memory = std::move(*memory);
   (*job)->session_id = id_;
   (*job)->scene_world = spatial_.MergedWorld();
   // A seedless search takes the whole map: its size is bounded (the surfaces stay).
@@ -387,6 +554,8 @@ void Session::DeliverResult(std::uint64_t request_id, std::shared_ptr<const std:
   net::post(socket_.get_executor(), [self = shared_from_this(), request_id, frame = std::move(frame)]() mutable {
     self->in_flight_.erase(request_id);
     self->Enqueue(std::move(frame));
+    if (self->read_closed_ && self->in_flight_.empty())
+      self->StartClosing("client closed its side; every result delivered");
   });
 }
 
@@ -485,6 +654,8 @@ void Session::StartClosing(const std::string& reason) {
   state_ = State::kClosing;
   close_reason_ = reason;
   idle_timer_.cancel();
+  hello_timer_.cancel();
+  frame_timer_.cancel();
   boost::system::error_code ignored;
   socket_.shutdown(tcp::socket::shutdown_receive, ignored);  // ends the pending read
   if (!writing_) return CloseNow(reason);
@@ -503,6 +674,8 @@ void Session::CloseNow(const std::string& reason) {
   else
     spdlog::info("session {} ({}) closed: {}", id_, peer_, reason);
   idle_timer_.cancel();
+  hello_timer_.cancel();
+  frame_timer_.cancel();
   write_timer_.cancel();
   linger_timer_.cancel();
   boost::system::error_code ignored;
@@ -510,6 +683,9 @@ void Session::CloseNow(const std::string& reason) {
   socket_.close(ignored);
   write_queue_.clear();
   write_queue_bytes_ = 0;
+  frame_memory_.Release();
+  spatial_ = SpatialMesh();  // nothing reads the map once closed: free it with its charge
+  surface_memory_.clear();
   const auto dropped = ctx_.jobs.CancelSession(id_);  // running ones stop at their next stage
   if (!dropped.empty()) spdlog::info("session {}: {} queued requests dropped with it", id_, dropped.size());
   ctx_.hub.RemoveSession(id_);

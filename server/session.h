@@ -24,6 +24,8 @@
 #include "arref/scene/spatial_mesh.h"
 #include "frame_decoder.h"
 #include "job_scheduler.h"
+#include "memory_budget.h"
+#include "request_builder.h"
 #include "robot_registry.h"
 #include "server_config.h"
 #include "subscriber_hub.h"
@@ -41,9 +43,20 @@ struct ServerContext {
   JobScheduler& jobs;
   SubscriberHub& hub;
   std::atomic<bool>& shutting_down;
+  MemoryBudget& memory;
+  // A connection that completed Hello asks to become a session (limits.max_sessions); an error
+  // refuses it. Called on the session's strand.
+  std::function<Status(std::uint64_t session_id)> on_hello;
   std::function<void(std::uint64_t session_id)> on_session_closed;
   std::string server_version;
 };
+
+// The largest frame accepted before Hello (Hello itself is a few hundred bytes), so that
+// connections that have not identified themselves cannot make the server buffer much.
+constexpr std::size_t kMaxHelloBytes = 64 * 1024;
+// Frames from this size on are charged to the memory budget while they are received.
+constexpr std::size_t kChargedFrameBytes = 64 * 1024;
+constexpr std::size_t kMaxPingPayload = 64 * 1024;
 
 class Session : public std::enable_shared_from_this<Session> {
  public:
@@ -67,13 +80,20 @@ class Session : public std::enable_shared_from_this<Session> {
   // Reading and framing.
   void ReadMore();
   void OnRead(const boost::system::error_code& ec, std::size_t bytes);
+  void OnReadEnd(const boost::system::error_code& ec);
   bool ProcessFrames();  // false when the session started closing
+  bool ChargeNextFrame();  // reserves a large frame's memory, or skips it; false: skipped
   void ArmIdleTimer();
+  void ArmHelloTimer();
+  void UpdateFrameTimer(bool frame_completed);
 
   // Message handlers.
   void Handle(const wire::pb::ClientMessage& message);
   void OnHello(const wire::pb::Hello& m);
   void OnSurfaceUpsert(const wire::pb::SurfaceUpsert& m);
+  // The session's limits and the memory budget for a surface of this size replacing `sid`.
+  Result<MemoryBudget::Reservation> AdmitSurface(std::uint64_t sid, std::size_t vertices, std::size_t triangles);
+  void FillHelloReply(wire::pb::HelloReply* r) const;
   void OnSurfaceRemove(const wire::pb::SurfaceRemove& m);
   void OnSeedPose(const wire::pb::SeedPose& m);
   void OnJointState(const wire::pb::JointState& m);
@@ -110,6 +130,11 @@ class Session : public std::enable_shared_from_this<Session> {
 
   wire::FrameDecoder rx_;
   net::steady_timer idle_timer_;
+  net::steady_timer hello_timer_;
+  net::steady_timer frame_timer_;
+  bool frame_timer_armed_ = false;
+  MemoryBudget::Reservation frame_memory_;  // the large frame being received
+  bool read_closed_ = false;                // the client half-closed: deliver results, then close
   net::steady_timer write_timer_;
   net::steady_timer linger_timer_;
 
@@ -118,9 +143,12 @@ class Session : public std::enable_shared_from_this<Session> {
   bool writing_ = false;
 
   SpatialMesh spatial_;
+  std::map<std::uint64_t, MemoryBudget::Reservation> surface_memory_;  // by surface id
+  std::size_t triangles_ = 0;   // over all surfaces
+  std::size_t mesh_bytes_ = 0;  // MeshBytes over all surfaces
   std::optional<Iso3> seed_;
   FrameConvention seed_frame_ = FrameConvention::kUnity;
-  std::map<std::string, JointValues> joints_;  // by robot id; "" applies to every robot
+  std::map<std::string, SessionJoints> joints_;  // latest JointState by robot id; "" applies to every robot
   std::set<std::uint64_t> in_flight_;
   bool shutdown_notified_ = false;
 };

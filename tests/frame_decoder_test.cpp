@@ -142,5 +142,50 @@ TEST(WireFrameDecoder, BigBufferIsFreedOnceConsumed) {
   EXPECT_LT(d.capacity(), 1024u);
 }
 
+// A frame the reader cannot take is dropped as it arrives, in pieces, without growing the
+// buffer; the frames around it come through intact.
+TEST(WireFrameDecoder, SkippedFrameIsDiscardedAndTheStreamGoesOn) {
+  const std::string big = PingFrame(2, 200000);
+  const std::string stream = PingFrame(1, 10) + big + PingFrame(3, 10);
+  FrameDecoder d(1 << 20);
+  d.Append(stream.substr(0, PingFrame(1, 10).size() + 3));  // frame 1 and the start of frame 2
+  auto f = d.Next();
+  ASSERT_EQ(f.kind, Kind::kFrame);
+  EXPECT_EQ(NonceOf(f.body), 1u);
+  EXPECT_EQ(d.PendingBodyBytes(), big.size() - 3) << "frame 2's three-byte prefix has arrived";
+  d.SkipNext();
+  EXPECT_TRUE(d.skipping());
+  EXPECT_EQ(d.Next().kind, Kind::kNeedMore);
+  std::size_t at = PingFrame(1, 10).size() + 3;
+  while (at < stream.size()) {
+    const std::size_t n = std::min<std::size_t>(4096, stream.size() - at);
+    d.Append(std::string_view(stream).substr(at, n));
+    at += n;
+    EXPECT_LE(d.capacity(), 64u * 1024) << "skipped bytes are not kept";
+    for (f = d.Next(); f.kind != Kind::kNeedMore; f = d.Next()) {
+      if (f.kind == Kind::kSkipped) {
+        EXPECT_EQ(f.body_bytes, big.size() - 3);
+      } else {
+        ASSERT_EQ(f.kind, Kind::kFrame);
+        EXPECT_EQ(NonceOf(f.body), 3u);
+        EXPECT_FALSE(d.skipping());
+      }
+    }
+  }
+  EXPECT_EQ(d.buffered_bytes(), 0u);
+  EXPECT_EQ(d.PendingBodyBytes(), 0u);
+}
+
+TEST(WireFrameDecoder, LargerMaximumAfterAHandshake) {
+  FrameDecoder d(100);
+  d.Append(PingFrame(1, 50));
+  EXPECT_EQ(d.Next().kind, Kind::kFrame);
+  d.set_max_body_bytes(1000);
+  d.Append(PingFrame(2, 500));
+  const auto f = d.Next();
+  ASSERT_EQ(f.kind, Kind::kFrame);
+  EXPECT_EQ(NonceOf(f.body), 2u);
+}
+
 }  // namespace
 }  // namespace arref::wire

@@ -138,6 +138,53 @@ TEST(JobScheduler, OneWorkerRunsJobsInArrivalOrder) {
   for (StatusCode code : h.outcomes.codes()) EXPECT_EQ(code, StatusCode::kOk);
 }
 
+// Session 7 queues its whole window first, then 8 and 9 queue theirs: the worker takes one job
+// per session per turn, so 8 and 9 do not wait behind all of 7's jobs.
+TEST(JobScheduler, WorkersTakeJobsRoundRobinAcrossSessions) {
+  Harness h;
+  JobScheduler jobs(1, 16, h.Runner());
+  ASSERT_EQ(jobs.Submit(h.MakeJob(1, 7), nullptr), JobScheduler::SubmitResult::kQueued);
+  h.started.Wait();  // job 1 runs; everything below waits in the queue
+  std::vector<std::size_t> positions;
+  auto submit = [&](std::uint64_t id, std::uint64_t session) {
+    std::size_t position = 99;
+    ASSERT_EQ(jobs.Submit(h.MakeJob(id, session), &position), JobScheduler::SubmitResult::kQueued);
+    positions.push_back(position);
+  };
+  for (std::uint64_t id : {10, 11, 12, 13}) submit(id, 7);
+  for (std::uint64_t id : {20, 21}) submit(id, 8);
+  submit(30, 9);
+  h.release.Open();
+  h.outcomes.WaitFor(8);
+  jobs.CloseQueue();
+  jobs.Join();
+  EXPECT_EQ(h.run_order, (std::vector<std::uint64_t>{1, 10, 20, 30, 11, 21, 12, 13}));
+  // Positions as queued: 7's four alone (0..3); 8's first goes after 7's first (1), its second
+  // after 7's second (3); 9's one after the first round of 7 and 8 (2).
+  EXPECT_EQ(positions, (std::vector<std::size_t>{0, 1, 2, 3, 1, 3, 2}));
+}
+
+TEST(JobScheduler, AcceptedInfoCarriesTheSessionsQueueWait) {
+  Harness h;
+  JobScheduler jobs(1, 16, h.Runner());
+  ASSERT_EQ(jobs.Submit(h.MakeJob(1, 7), nullptr), JobScheduler::SubmitResult::kQueued);
+  h.started.Wait();
+  QueueInfo first;
+  ASSERT_EQ(jobs.Submit(h.MakeJob(2, 7), nullptr, &first), JobScheduler::SubmitResult::kQueued);
+  EXPECT_EQ(first.session_jobs_started, 1u) << "job 1 has started";
+  EXPECT_GE(first.session_queue_ms, 0.0);
+  EXPECT_EQ(first.position, 0u);
+  QueueInfo other;
+  ASSERT_EQ(jobs.Submit(h.MakeJob(3, 9), nullptr, &other), JobScheduler::SubmitResult::kQueued);
+  EXPECT_EQ(other.session_jobs_started, 0u) << "session 9 has no history";
+  EXPECT_EQ(other.session_queue_ms, 0.0);
+  EXPECT_EQ(other.position, 1u);
+  h.release.Open();
+  h.outcomes.WaitFor(3);
+  jobs.CloseQueue();
+  jobs.Join();
+}
+
 TEST(JobScheduler, CancelRemovesAQueuedJobAndFlagsARunningOne) {
   Harness h;
   JobScheduler jobs(1, 8, h.Runner());

@@ -58,7 +58,7 @@ class RequestBuilder : public ::testing::Test {
 
   static ServerConfig* config_;
   static RobotRegistry* robots_;
-  std::map<std::string, JointValues> session_joints_;
+  std::map<std::string, SessionJoints> session_joints_;
   SessionDefaults session_{.seed = std::nullopt, .seed_frame = FrameConvention::kUnity, .joints = &session_joints_};
 };
 
@@ -106,7 +106,7 @@ TEST_F(RequestBuilder, UnsetFieldsFallBackToConfigAndSession) {
   m.set_robot_id("kr5");
   session_.seed = SomePose();
   session_.seed_frame = FrameConvention::kRos;
-  session_joints_[""] = {{"joint_a2", -0.4}};
+  session_joints_[""].values = {{"joint_a2", -0.4}};
   auto job = Build(m);
   ASSERT_TRUE(job.ok()) << job.status().ToString();
   EXPECT_TRUE((*job)->T_world_seed.isApprox(SomePose()));
@@ -116,10 +116,48 @@ TEST_F(RequestBuilder, UnsetFieldsFallBackToConfigAndSession) {
   EXPECT_DOUBLE_EQ((*job)->joints.at("joint_a2"), -0.4);
 
   // A joint state sent for this robot wins over one sent for any robot.
-  session_joints_["kr5"] = {{"joint_a2", -0.3}};
+  session_joints_["kr5"].values = {{"joint_a2", -0.3}};
   job = Build(m);
   ASSERT_TRUE(job.ok()) << job.status().ToString();
   EXPECT_DOUBLE_EQ((*job)->joints.at("joint_a2"), -0.3);
+}
+
+// A request never runs on joints the client did not mean: the latest JointState it would use
+// was rejected, so it fails naming that rejection; its own joints, or a valid state, go on.
+TEST_F(RequestBuilder, RejectedJointStateFailsTheRequestsThatWouldUseIt) {
+  pb::RegisterRequest m;
+  m.set_request_id(1);
+  m.set_robot_id("kr5");
+  session_.seed = SomePose();
+  session_joints_["kr5"].rejected = "joint 'joint_nope' is not a joint of robot kr5";
+  ExpectRefused(m, pb::ERROR_CODE_INVALID_ARGUMENT, "latest JointState for robot 'kr5' was rejected (joint 'joint_nope'");
+  // A rejected state for every robot ("") is used only where the robot has none of its own.
+  session_joints_.clear();
+  session_joints_[""].rejected = "joint state has 2 names but 1 positions";
+  ExpectRefused(m, pb::ERROR_CODE_INVALID_ARGUMENT, "2 names but 1 positions");
+  session_joints_["kr5"].values = {{"joint_a2", -0.3}};
+  auto job = Build(m);
+  ASSERT_TRUE(job.ok()) << job.status().ToString();
+  EXPECT_DOUBLE_EQ((*job)->joints.at("joint_a2"), -0.3);
+  // The request's own joints win over a rejected session state.
+  session_joints_["kr5"] = SessionJoints{.values = {}, .rejected = "position of joint_a1 is not finite"};
+  m.mutable_joints()->add_names("joint_a2");
+  m.mutable_joints()->add_positions(-0.2);
+  job = Build(m);
+  ASSERT_TRUE(job.ok()) << job.status().ToString();
+  EXPECT_DOUBLE_EQ((*job)->joints.at("joint_a2"), -0.2);
+}
+
+TEST_F(RequestBuilder, OutOfRangeResultFrameIsRefused) {
+  pb::RegisterRequest m = GoodRequest();
+  m.set_result_frame(static_cast<pb::FrameConvention>(99));
+  ExpectRefused(m, pb::ERROR_CODE_INVALID_ARGUMENT,
+                "RegisterRequest.result_frame: frame convention 99 is not one of UNITY (1) or ROS (2)");
+  m.set_result_frame(pb::FRAME_CONVENTION_UNSPECIFIED);
+  EXPECT_TRUE(Build(m).ok()) << "unset: the seed's frame";
+  // Seeds (and so SeedPose, surfaces and head paths, through the same conversion) too.
+  m.mutable_seed()->set_frame(static_cast<pb::FrameConvention>(-3));
+  ExpectRefused(m, pb::ERROR_CODE_INVALID_ARGUMENT, "RegisterRequest.seed: frame convention -3 is not one of");
 }
 
 TEST_F(RequestBuilder, UnknownRobot) {

@@ -33,6 +33,32 @@ TEST(ServerConfig, ValuesAreReadWithTheirTypes) {
   EXPECT_DOUBLE_EQ(config->robots[0].default_joints.at("joint_a2"), -0.5);
 }
 
+TEST(ServerConfig, HardeningLimitsAreReadAndChecked) {
+  auto config = ParseServerConfig(
+      "server: {hello_timeout_s: 2, frame_timeout_s: 7.5}\n"
+      "limits: {max_pending_connections: 10, max_connections_per_peer: 3, max_triangles_per_session: 1000,\n"
+      "         max_mesh_bytes_per_session: 65536, memory_budget_bytes: 268435456}\n"
+      "robots: [{id: kr5, urdf: builtin}]\n", "/tmp");
+  ASSERT_TRUE(config.ok()) << config.status().ToString();
+  EXPECT_DOUBLE_EQ(config->hello_timeout_s, 2.0);
+  EXPECT_DOUBLE_EQ(config->frame_timeout_s, 7.5);
+  EXPECT_EQ(config->limits.max_pending_connections, 10u);
+  EXPECT_EQ(config->limits.max_connections_per_peer, 3u);
+  EXPECT_EQ(config->limits.max_triangles_per_session, 1000u);
+  EXPECT_EQ(config->limits.max_mesh_bytes_per_session, 65536u);
+  EXPECT_EQ(config->limits.memory_budget_bytes, 268435456u);
+  EXPECT_TRUE(ValidateServerConfig(*config).ok());
+  config->limits.memory_budget_bytes = 1 << 20;
+  EXPECT_NE(ValidateServerConfig(*config).ToString().find("memory_budget_bytes"), std::string::npos);
+  config->limits.memory_budget_bytes = 256u << 20;
+  config->hello_timeout_s = 0;
+  EXPECT_FALSE(ValidateServerConfig(*config).ok());
+  // The shipped default fits a 2 GiB unit with room for the fixed part.
+  auto shipped = LoadDefaultServerConfig();
+  ASSERT_TRUE(shipped.ok()) << shipped.status().ToString();
+  EXPECT_LE(shipped->limits.memory_budget_bytes, std::size_t{1} << 30);
+}
+
 TEST(ServerConfig, BadValuesAreNamed) {
   struct Case {
     std::string yaml;

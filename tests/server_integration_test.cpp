@@ -1,8 +1,12 @@
 // End-to-end tests of arref-server: the real server process on loopback, driven by the mock
 // headset (its client library and, for the misbehaviour flags, its executable).
+#include <arpa/inet.h>
 #include <fcntl.h>
+#include <netinet/in.h>
 #include <poll.h>
 #include <signal.h>
+#include <sys/resource.h>
+#include <sys/socket.h>
 #include <spawn.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -13,10 +17,12 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <filesystem>
 #include <fstream>
 #include <map>
 #include <memory>
+#include <optional>
 #include <regex>
 #include <set>
 #include <sstream>
@@ -26,6 +32,7 @@
 
 #include "arref/scene/metrics.h"
 #include "arref/sim/room_simulator.h"
+#include "frame_decoder.h"
 #include "headset_client.h"
 #include "test_support.h"
 
@@ -55,14 +62,16 @@ struct ServerSettings {
   std::size_t max_send_queue_bytes = 8u << 20;
   double shutdown_grace_s = 60;
   std::size_t max_map_triangles = 1'000'000;
+  std::size_t max_connections_per_peer = 256;  // every test client comes from 127.0.0.1
+  std::string server_yaml, limits_yaml;  // more keys of those sections, each line "  key: value\n"
 };
 
 std::string ConfigYaml(const ServerSettings& s) {
   std::ostringstream y;
   y << "server:\n  address: 127.0.0.1\n  port: 0\n  workers: " << s.workers << "\n  queue_size: " << s.queue_size
-    << "\n  shutdown_grace_s: " << s.shutdown_grace_s << "\n  idle_timeout_s: 300\n"
+    << "\n  shutdown_grace_s: " << s.shutdown_grace_s << "\n  idle_timeout_s: 300\n" << s.server_yaml
     << "limits:\n  max_sessions: " << s.max_sessions << "\n  max_send_queue_bytes: " << s.max_send_queue_bytes
-    << "\n  max_map_triangles: " << s.max_map_triangles << "\nrobots:\n  - id: kr5\n    urdf: builtin\n";
+    << "\n  max_connections_per_peer: " << s.max_connections_per_peer << "\n  max_map_triangles: " << s.max_map_triangles << "\n" << s.limits_yaml << "robots:\n  - id: kr5\n    urdf: builtin\n";
   return y.str();
 }
 
@@ -278,6 +287,8 @@ class ScriptedHeadset {
   }
   Result<pb::ServerMessage> Receive(double timeout_s) { return conn_.Receive(timeout_s); }
   const std::vector<pb::ServerMessage>& seen() const { return seen_; }
+  void ShutdownWrite() { conn_.ShutdownWrite(); }
+  void Close() { conn_.Close(); }
 
  private:
   Connection conn_;
@@ -599,6 +610,16 @@ TEST(ServerIntegration, ClearErrorsForBadRequests) {
   e = h.AwaitError();
   EXPECT_EQ(e.error().code(), pb::ERROR_CODE_INVALID_ARGUMENT);
   EXPECT_NE(e.error().message().find("joint_nope"), std::string::npos) << e.error().message();
+  // The rejected JointState is not silently replaced by defaults: the request fails naming it.
+  h.Request(6);
+  e = h.AwaitError();
+  EXPECT_EQ(e.error().code(), pb::ERROR_CODE_INVALID_ARGUMENT);
+  EXPECT_EQ(e.error().request_id(), 6u);
+  EXPECT_NE(e.error().message().find("JointState for robot 'kr5' was rejected"), std::string::npos) << e.error().message();
+  EXPECT_NE(e.error().message().find("joint_nope"), std::string::npos) << e.error().message();
+  joints.mutable_joint_state()->clear_names();
+  joints.mutable_joint_state()->clear_positions();
+  h.Send(joints);  // a valid (empty: every joint at its default) state replaces it
   pb::ClientMessage req;
   req.mutable_register_request()->set_request_id(4);
   req.mutable_register_request()->set_robot_id("kr5");
@@ -716,9 +737,10 @@ TEST(ServerIntegration, SessionLimitIsAClearError) {
   ScriptedHeadset a(server), b(server);
   ASSERT_TRUE(a.Hello().has_hello_reply());
   ASSERT_TRUE(b.Hello().has_hello_reply());
-  ScriptedHeadset c(server);
-  const auto e = c.Next();
+  ScriptedHeadset c(server);  // connects (not counted yet); its Hello is refused
+  const auto e = c.Hello();
   EXPECT_EQ(e.error().code(), pb::ERROR_CODE_LIMIT_EXCEEDED);
+  EXPECT_TRUE(e.error().fatal());
   EXPECT_NE(e.error().message().find("max_sessions"), std::string::npos) << e.error().message();
 }
 
@@ -782,6 +804,372 @@ TEST(ServerIntegration, GracefulShutdownAnswersEveryAcceptedRequest) {
   }
   EXPECT_GE(ok, 1) << "the running job finishes and delivers its result";
   EXPECT_GE(cancelled, 1) << "queued jobs are cancelled";
+}
+
+// ---------------------------------------------------------------- hardening (issue 30)
+
+long StatusKb(pid_t pid, const std::string& key) {
+  std::ifstream in("/proc/" + std::to_string(pid) + "/status");
+  for (std::string line; std::getline(in, line);)
+    if (line.rfind(key + ":", 0) == 0) return std::stol(line.substr(key.size() + 1));
+  return -1;
+}
+
+// A flat n x n grid (2 (n-1)^2 triangles), far from any robot.
+pb::ClientMessage GridSurface(std::uint64_t id, int n) {
+  Surface s;
+  s.id = id;
+  s.T_world_surface = Iso3(Eigen::Translation3d(50, 50, 0));
+  for (int y = 0; y < n; ++y)
+    for (int x = 0; x < n; ++x) s.mesh.vertices.emplace_back(0.01f * x, 0.01f * y, 0.0f);
+  for (int y = 0; y + 1 < n; ++y)
+    for (int x = 0; x + 1 < n; ++x) {
+      const auto v = static_cast<std::uint32_t>(y * n + x), u = static_cast<std::uint32_t>(n);
+      s.mesh.triangles.push_back({v, v + 1, v + u});
+      s.mesh.triangles.push_back({v + 1, v + u + 1, v + u});
+    }
+  pb::ClientMessage m;
+  *m.mutable_surface_upsert() = wire::SurfaceToProto(s, FrameConvention::kUnity);
+  return m;
+}
+
+pb::ClientMessage PingMessage(std::uint64_t nonce) {
+  pb::ClientMessage m;
+  m.mutable_ping()->set_nonce(nonce);
+  return m;
+}
+
+// Sends the surfaces then a Ping, and collects the errors that come before its Pong.
+std::vector<pb::Error> SendSurfaces(ScriptedHeadset& h, pb::ClientMessage surface, std::uint64_t first_id, int count) {
+  for (int k = 0; k < count; ++k) {
+    surface.mutable_surface_upsert()->set_surface_id(first_id + static_cast<std::uint64_t>(k));
+    h.Send(surface);
+  }
+  h.Send(PingMessage(first_id));
+  std::vector<pb::Error> errors;
+  h.Await([&](const pb::ServerMessage& m) {
+    if (m.has_error()) errors.push_back(m.error());
+    return m.has_pong() && m.pong().nonce() == first_id;
+  });
+  return errors;
+}
+
+bool Names(const pb::Error& e, const std::string& what) { return e.message().find(what) != std::string::npos; }
+
+// Every session tries to take more memory than the server has: each gets LIMIT_EXCEEDED
+// naming the limit or the budget, keeps what it had, an accepted request still completes, and
+// once memory is freed the same session and a new one register.
+TEST(ServerHardening, MemoryBudgetAndTriangleLimitRefuseWithoutHurtingSessions) {
+  constexpr std::size_t kBudget = 256u << 20;
+  ServerProcess server({.workers = 1,
+                        .limits_yaml = "  memory_budget_bytes: " + std::to_string(kBudget) +
+                                       "\n  max_triangles_per_session: 7500000\n  max_message_bytes: 33554432\n"});
+  ScriptedHeadset a(server);
+  const auto hello = a.Hello();
+  ASSERT_TRUE(hello.has_hello_reply());
+  EXPECT_EQ(hello.hello_reply().limits().memory_budget_bytes(), kBudget);
+  EXPECT_EQ(hello.hello_reply().limits().max_triangles_per_session(), 7500000u);
+  a.Upload(Scene(1));
+  a.Seed(Scene(1).seeds[0]);
+  // 7,500,001 triangles on three vertices (the shape that once took 1.2 GB): refused by count
+  // before anything is converted.
+  pb::ClientMessage many;
+  auto* u = many.mutable_surface_upsert();
+  u->set_surface_id(777);
+  u->set_frame(pb::FRAME_CONVENTION_UNITY);
+  for (int k = 0; k < 9; ++k) u->add_vertices(k == 3 || k == 7 ? 1.0f : 0.0f);
+  *u->mutable_t_world_surface() = wire::PoseToProto(Iso3::Identity(), FrameConvention::kUnity);
+  for (int k = 0; k < 7500001; ++k) u->add_triangles(0), u->add_triangles(1), u->add_triangles(2);
+  auto errors = SendSurfaces(a, many, 777, 1);
+  ASSERT_EQ(errors.size(), 1u);
+  EXPECT_EQ(errors[0].code(), pb::ERROR_CODE_LIMIT_EXCEEDED);
+  EXPECT_EQ(errors[0].surface_id(), 777u);
+  EXPECT_FALSE(errors[0].fatal());
+  EXPECT_TRUE(Names(errors[0], "max_triangles_per_session")) << errors[0].message();
+  // A first registration builds the robot's model cache (the server's fixed part, not charged).
+  a.Request(10);
+  ASSERT_EQ(a.AwaitResult(10).result().status(), pb::RESULT_STATUS_OK);
+  const long rss_before_kb = server.RssKb();
+  a.Request(1);  // accepted now, so its memory is reserved before the others flood
+  a.Await([](const pb::ServerMessage& m) { return m.has_accepted() && m.accepted().request_id() == 1; });
+
+  // Three sessions each send 13 surfaces of 300k vertices and 597k triangles (10.8 MB held,
+  // 9 MB frames): the 13th is over the session's triangles, and the budget cannot hold them all.
+  std::vector<std::unique_ptr<ScriptedHeadset>> floods;
+  const pb::ClientMessage big = GridSurface(0, 548);
+  int budget_errors = 0, accepted_big = 0;
+  for (int f = 0; f < 3; ++f) {
+    floods.push_back(std::make_unique<ScriptedHeadset>(server));
+    ASSERT_TRUE(floods.back()->Hello().has_hello_reply());
+    errors = SendSurfaces(*floods.back(), big, 1, 13);
+    if (f == 0) {
+      ASSERT_EQ(errors.size(), 1u);
+      EXPECT_EQ(errors[0].surface_id(), 13u);
+      EXPECT_TRUE(Names(errors[0], "max_triangles_per_session")) << errors[0].message();
+      errors.clear();
+    }
+    for (const auto& e : errors) {
+      EXPECT_EQ(e.code(), pb::ERROR_CODE_LIMIT_EXCEEDED) << e.message();
+      EXPECT_FALSE(e.fatal());
+      budget_errors += Names(e, "memory_budget_bytes");
+    }
+    accepted_big += 13 - static_cast<int>(errors.size()) - (f == 0);
+  }
+  EXPECT_GT(budget_errors, 0) << "38 x 10.8 MB cannot fit a 256 MiB budget";
+  EXPECT_EQ(a.AwaitResult(1).result().status(), pb::RESULT_STATUS_OK) << "the request accepted before is not hurt";
+  // A fourth session fills what is left with small surfaces (20k vertices, 0.7 MB) until the
+  // budget refuses them too.
+  floods.push_back(std::make_unique<ScriptedHeadset>(server));
+  ASSERT_TRUE(floods.back()->Hello().has_hello_reply());
+  errors = SendSurfaces(*floods.back(), GridSurface(0, 142), 100, 150);
+  ASSERT_FALSE(errors.empty());
+  for (const auto& e : errors) EXPECT_TRUE(Names(e, "memory_budget_bytes")) << e.message();
+  const long hwm_kb = StatusKb(server.pid(), "VmHWM"), rss_kb = server.RssKb();
+  std::printf("memory budget %zu MiB: %d of 38 big surfaces held; RSS %.1f MiB before the flood, %.1f MiB after, "
+              "peak %.1f MiB (growth %.1f MiB)\n", kBudget >> 20, accepted_big, rss_before_kb / 1024.0,
+              rss_kb / 1024.0, hwm_kb / 1024.0, (hwm_kb - rss_before_kb) / 1024.0);
+  RecordProperty("rss_before_mb", static_cast<int>(rss_before_kb / 1024));
+  RecordProperty("rss_peak_mb", static_cast<int>(hwm_kb / 1024));
+  // Clients' memory is charged at its real size, so a full budget is about the budget in RSS;
+  // the allowance is for the allocator's and the sessions' bookkeeping, which is not charged.
+  EXPECT_LT(hwm_kb - rss_before_kb, static_cast<long>((kBudget + kBudget / 16) >> 10))
+      << "what clients add stays within the budget";
+
+  // A's next request does not fit: a clear error naming the budget and the request.
+  a.Request(2);
+  auto e = a.AwaitError();
+  EXPECT_EQ(e.error().code(), pb::ERROR_CODE_LIMIT_EXCEEDED);
+  EXPECT_EQ(e.error().request_id(), 2u);
+  EXPECT_TRUE(Names(e.error(), "memory_budget_bytes")) << e.error().message();
+  EXPECT_TRUE(Names(e.error(), "request 2")) << e.error().message();
+  // A flood leaves; A, which kept its surfaces, registers again, and so does a new session.
+  floods.front()->Close();
+  std::uint64_t id = 3;
+  for (int tries = 0; tries < 200; ++tries, ++id) {
+    a.Request(id);
+    const auto m = a.Await([id](const pb::ServerMessage& x) {
+      return (x.has_accepted() && x.accepted().request_id() == id) || (x.has_error() && x.error().request_id() == id);
+    });
+    if (m.has_accepted()) break;
+    ASSERT_TRUE(Names(m.error(), "memory_budget_bytes")) << m.error().message();
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));  // the closed session's memory is freed on its strand
+  }
+  const auto r = a.AwaitResult(id).result();
+  EXPECT_EQ(r.status(), pb::RESULT_STATUS_OK) << r.message();
+  EXPECT_GT(r.scene_triangles(), 1000u) << "A's surfaces are all still there";
+  ExpectAnotherHeadsetSucceeds(server);
+  EXPECT_TRUE(server.alive());
+}
+
+// A raw TCP connection from a chosen loopback address (the per-peer cap counts addresses).
+int ConnectFrom(const std::string& source, std::uint16_t port) {
+  const int fd = socket(AF_INET, SOCK_STREAM | SOCK_CLOEXEC, 0);
+  if (fd < 0) return -1;
+  sockaddr_in local{};
+  local.sin_family = AF_INET;
+  inet_pton(AF_INET, source.c_str(), &local.sin_addr);
+  sockaddr_in remote{};
+  remote.sin_family = AF_INET;
+  remote.sin_port = htons(port);
+  inet_pton(AF_INET, "127.0.0.1", &remote.sin_addr);
+  if (bind(fd, reinterpret_cast<sockaddr*>(&local), sizeof local) != 0 ||
+      connect(fd, reinterpret_cast<sockaddr*>(&remote), sizeof remote) != 0) {
+    close(fd);
+    return -1;
+  }
+  return fd;
+}
+
+// The first server message on a raw socket, or none if it closes (or timeout_s passes) first.
+std::optional<pb::ServerMessage> FirstMessage(int fd, double timeout_s) {
+  wire::FrameDecoder rx(1 << 20);
+  const auto deadline = Clock::now() + std::chrono::duration<double>(timeout_s);
+  while (Clock::now() < deadline) {
+    pollfd p{fd, POLLIN, 0};
+    if (poll(&p, 1, 100) <= 0) continue;
+    const auto space = rx.Buffer(4096);
+    const ssize_t n = read(fd, space.data(), space.size());
+    if (n <= 0) return std::nullopt;
+    rx.Commit(static_cast<std::size_t>(n));
+    const auto f = rx.Next();
+    if (f.kind != wire::FrameDecoder::Frame::Kind::kFrame) continue;
+    pb::ServerMessage m;
+    if (m.ParseFromArray(f.body.data(), static_cast<int>(f.body.size()))) return m;
+    return std::nullopt;
+  }
+  return std::nullopt;
+}
+
+// Hundreds of connections that never say Hello (half of them send a byte of a frame) do not
+// keep a well-behaved headset out; each is closed with HANDSHAKE_TIMEOUT, one peer's ninth is
+// refused, and a client trickling a frame after Hello is closed by the frame deadline.
+TEST(ServerHardening, IdleAndTricklingConnectionsDoNotLockOutHeadsets) {
+  rlimit files{};
+  getrlimit(RLIMIT_NOFILE, &files);
+  files.rlim_cur = std::min<rlim_t>(files.rlim_max, 8192);
+  setrlimit(RLIMIT_NOFILE, &files);  // the server inherits it
+  constexpr int kPerPeer = 8;
+  const int attackers = static_cast<int>(std::min<rlim_t>(1000, (files.rlim_cur - 64) / 2));
+  ServerProcess server({.max_sessions = 4,
+                        .max_connections_per_peer = kPerPeer,
+                        .server_yaml = "  hello_timeout_s: 3\n  frame_timeout_s: 2\n",
+                        .limits_yaml = "  max_pending_connections: 64\n"});
+  const auto source = [](int i) {
+    const int peer = i / kPerPeer;
+    return "127.1." + std::to_string(peer / 250) + "." + std::to_string(peer % 250 + 1);
+  };
+  std::vector<int> fds;
+  for (int i = 0; i < attackers; ++i) {
+    const int fd = ConnectFrom(source(i), server.port());
+    ASSERT_GE(fd, 0) << "connection " << i << " from " << source(i) << ": " << std::strerror(errno);
+    if (i % 2 == 1) {
+      ASSERT_EQ(write(fd, "\x0a", 1), 1);  // a frame of 10 bytes begins, and stops
+    }
+    fds.push_back(fd);
+  }
+  // A fresh peer's ninth connection (newer than the flood, so none of its eight is evicted).
+  std::vector<int> peer_fds;
+  for (int k = 0; k < kPerPeer; ++k) {
+    peer_fds.push_back(ConnectFrom("127.2.0.1", server.port()));
+    ASSERT_GE(peer_fds.back(), 0);
+  }
+  const int extra = ConnectFrom("127.2.0.1", server.port());
+  ASSERT_GE(extra, 0);
+
+  // The good headset, right behind the flood.
+  const auto t0 = Clock::now();
+  ScriptedHeadset good(server);
+  const auto reply = good.Hello();
+  const double hello_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+  ASSERT_TRUE(reply.has_hello_reply()) << reply.DebugString();
+  good.Upload(Scene(1));
+  good.Seed(Scene(1).seeds[0]);
+  good.Request(1);
+  const auto result = good.AwaitResult(1).result();
+  const double registered_ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+  EXPECT_EQ(result.status(), pb::RESULT_STATUS_OK) << result.message();
+
+  const auto refused = FirstMessage(extra, 30);
+  ASSERT_TRUE(refused.has_value());
+  EXPECT_EQ(refused->error().code(), pb::ERROR_CODE_LIMIT_EXCEEDED);
+  EXPECT_TRUE(Names(refused->error(), "max_connections_per_peer")) << refused->error().message();
+  close(extra);
+  for (int fd : peer_fds) close(fd);
+
+  // A session that trickles a frame is closed by the frame deadline.
+  auto trickler = Connection::Connect("127.0.0.1", server.port(), 30);
+  ASSERT_TRUE(trickler.ok());
+  pb::ClientMessage hi;
+  hi.mutable_hello()->set_protocol_version(wire::kProtocolVersion);
+  ASSERT_TRUE(trickler->Send(hi).ok());
+  ASSERT_TRUE(trickler->Receive(30)->has_hello_reply());
+  for (const char byte : std::string("\x0a\x0a\x08\x01", 4)) {
+    if (!trickler->SendRaw(std::string(1, byte)).ok()) break;  // closed already
+    std::this_thread::sleep_for(std::chrono::milliseconds(700));
+  }
+  const auto timed_out = trickler->Receive(30);
+  ASSERT_TRUE(timed_out.ok()) << timed_out.status().ToString();
+  EXPECT_EQ(timed_out->error().code(), pb::ERROR_CODE_FRAME_TIMEOUT);
+  EXPECT_TRUE(timed_out->error().fatal());
+  EXPECT_TRUE(Names(timed_out->error(), "frame_timeout_s")) << timed_out->error().message();
+
+  // Every idle connection was closed before Hello: evicted by newer ones, out of time, or (the
+  // tricklers) by the frame deadline, which is shorter here.
+  int handshake_closed = 0, evicted = 0, frame_closed = 0;
+  for (std::size_t k = 0; k < fds.size(); ++k) {
+    const auto m = FirstMessage(fds[k], 30);
+    const pb::ErrorCode code = m ? m->error().code() : pb::ERROR_CODE_UNSPECIFIED;
+    if (code == pb::ERROR_CODE_HANDSHAKE_TIMEOUT) {
+      ++handshake_closed;
+      evicted += Names(m->error(), "max_pending_connections");
+    } else if (code == pb::ERROR_CODE_FRAME_TIMEOUT && k % 2 == 1) {
+      ++frame_closed;
+    } else {
+      ADD_FAILURE() << "connection " << k << ": " << (m ? m->DebugString() : "closed without a message");
+    }
+    close(fds[k]);
+  }
+  EXPECT_EQ(handshake_closed + frame_closed, attackers);
+  EXPECT_GT(evicted, 0);
+  std::printf("%d idle/trickling connections from %d addresses (%d evicted, %d out of time, %d frame deadline): the "
+              "good headset's HelloReply after %.0f ms, its Result after %.0f ms\n", attackers,
+              (attackers + kPerPeer - 1) / kPerPeer, evicted, handshake_closed - evicted, frame_closed, hello_ms,
+              registered_ms);
+  RecordProperty("connections", attackers);
+  RecordProperty("hello_ms", static_cast<int>(hello_ms));
+  RecordProperty("registered_ms", static_cast<int>(registered_ms));
+  EXPECT_TRUE(server.alive());
+}
+
+// A surface's Error comes before the Pong of a later Ping; bad ids and enums get clear errors;
+// a client that half-closes after its request still gets the Result.
+TEST(ServerHardening, OrderingHalfCloseAndStrictFields) {
+  ServerProcess server;
+  ScriptedHeadset h(server);
+  const auto hello = h.Hello();
+  ASSERT_TRUE(hello.has_hello_reply());
+  const pb::Limits& limits = hello.hello_reply().limits();
+  EXPECT_EQ(limits.max_sessions(), 64u);
+  EXPECT_EQ(limits.max_message_bytes(), 16u << 20);
+  EXPECT_EQ(limits.max_requests_per_session(), 8u);
+  EXPECT_GT(limits.max_triangles_per_session(), 0u);
+  EXPECT_DOUBLE_EQ(limits.hello_timeout_s(), 5.0);
+  ASSERT_EQ(limits.params_size(), 4);
+  EXPECT_EQ(limits.params(0).name(), "crop_radius_m");
+  EXPECT_DOUBLE_EQ(limits.params(0).max(), 50.0);
+  h.Upload(Scene(1));
+  Surface bad = Scene(1).surfaces.front();
+  bad.id = 5555;
+  bad.mesh.vertices[0].x() = std::nanf("");
+  pb::ClientMessage m;
+  *m.mutable_surface_upsert() = wire::SurfaceToProto(bad, FrameConvention::kUnity);
+  h.Send(m);
+  h.Send(PingMessage(9));
+  auto first = h.Next();
+  ASSERT_TRUE(first.has_error()) << first.DebugString();
+  EXPECT_EQ(first.error().surface_id(), 5555u);
+  EXPECT_EQ(h.Next().pong().nonce(), 9u) << "the Pong comes after the surface's Error";
+  // Out-of-range enums, everywhere a frame is named.
+  pb::ClientMessage seed;
+  *seed.mutable_seed_pose()->mutable_t_world_seed() = wire::PoseToProto(Scene(1).seeds[0], FrameConvention::kUnity);
+  seed.mutable_seed_pose()->set_frame(static_cast<pb::FrameConvention>(99));
+  h.Send(seed);
+  auto e = h.Next();
+  EXPECT_EQ(e.error().code(), pb::ERROR_CODE_INVALID_ARGUMENT);
+  EXPECT_TRUE(Names(e.error(), "frame convention 99")) << e.error().message();
+  h.Seed(Scene(1).seeds[0]);
+  pb::ClientMessage req;
+  req.mutable_register_request()->set_request_id(4);
+  req.mutable_register_request()->set_robot_id("kr5");
+  req.mutable_register_request()->set_result_frame(static_cast<pb::FrameConvention>(99));
+  h.Send(req);
+  e = h.Next();
+  EXPECT_EQ(e.error().code(), pb::ERROR_CODE_INVALID_ARGUMENT);
+  EXPECT_EQ(e.error().request_id(), 4u);
+  EXPECT_TRUE(Names(e.error(), "RegisterRequest.result_frame: frame convention 99")) << e.error().message();
+  // request_id 0 cannot be told from unset in the answer: refused.
+  h.Request(0);
+  e = h.Next();
+  EXPECT_EQ(e.error().code(), pb::ERROR_CODE_INVALID_ARGUMENT);
+  EXPECT_TRUE(Names(e.error(), "request_id must be >= 1")) << e.error().message();
+  // Half-close after the request: the Result still arrives, then the server closes.
+  h.Request(1);
+  h.ShutdownWrite();
+  bool accepted = false;
+  std::optional<pb::Result> result;
+  while (true) {
+    auto next = h.Receive(kReplyTimeout);
+    if (!next.ok()) {
+      EXPECT_EQ(next.status().code(), StatusCode::kUnavailable) << next.status().ToString();
+      break;
+    }
+    accepted |= next->has_accepted();
+    if (next->has_result()) result = next->result();
+  }
+  EXPECT_TRUE(accepted);
+  ASSERT_TRUE(result.has_value()) << "the half-closed client's Result was lost";
+  EXPECT_EQ(result->status(), pb::RESULT_STATUS_OK) << result->message();
+  EXPECT_NE(server.Log().find("every result delivered"), std::string::npos);
 }
 
 }  // namespace

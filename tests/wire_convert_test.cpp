@@ -170,5 +170,45 @@ TEST(WireConvert, SharedFrameIsTheEncodedFrame) {
   EXPECT_EQ(*SharedFrame(m), EncodeFrame(m));
 }
 
+// The winding rule of arref.proto, checked on one triangle facing a viewer 1 m in front of it:
+// clockwise as the viewer sees it in Unity (Unity's Mesh.triangles), counter-clockwise in ROS,
+// both become the same outward normal; a counter-clockwise Unity triangle faces away.
+TEST(WireConvert, TriangleWindingRuleOfTheProtocol) {
+  const auto normal_toward_viewer = [](const pb::SurfaceUpsert& m, const Vec3& viewer_ros) {
+    auto s = SurfaceFromProto(m);
+    EXPECT_TRUE(s.ok()) << s.status().ToString();
+    const auto& v = s->mesh.vertices;
+    const auto& t = s->mesh.triangles.at(0);
+    const Vec3 a = v[t[0]].cast<double>(), b = v[t[1]].cast<double>(), c = v[t[2]].cast<double>();
+    return (b - a).cross(c - a).dot(viewer_ros - (a + b + c) / 3.0) > 0;  // right-handed normal
+  };
+  pb::SurfaceUpsert unity;
+  unity.set_surface_id(1);
+  unity.set_frame(pb::FRAME_CONVENTION_UNITY);
+  *unity.mutable_t_world_surface() = PoseToProto(Iso3::Identity(), FrameConvention::kUnity);
+  // In the plane z = 0; the viewer at Unity (0, 0, -1) looks along +z with x right and y up, and
+  // sees (0,0,0) -> (0,1,0) -> (1,0,0) turn clockwise.
+  for (float x : {0.f, 0.f, 0.f, 0.f, 1.f, 0.f, 1.f, 0.f, 0.f}) unity.add_vertices(x);
+  for (std::uint32_t k : {0u, 1u, 2u}) unity.add_triangles(k);
+  const Vec3 viewer = PositionToRos(Vec3(0, 0, -1), FrameConvention::kUnity);
+  EXPECT_TRUE(normal_toward_viewer(unity, viewer)) << "clockwise in Unity faces the viewer";
+  pb::SurfaceUpsert reversed = unity;
+  reversed.set_triangles(1, 2);
+  reversed.set_triangles(2, 1);
+  EXPECT_FALSE(normal_toward_viewer(reversed, viewer)) << "counter-clockwise in Unity faces away: swap the 2nd and 3rd";
+  // The same triangle sent in ROS: counter-clockwise as the viewer at ROS (-1, 0, 0) sees it.
+  pb::SurfaceUpsert ros;
+  ros.set_surface_id(1);
+  ros.set_frame(pb::FRAME_CONVENTION_ROS);
+  *ros.mutable_t_world_surface() = PoseToProto(Iso3::Identity(), FrameConvention::kRos);
+  for (int k = 0; k < 3; ++k) {
+    const Vec3 p = PositionToRos(Vec3(unity.vertices(3 * k), unity.vertices(3 * k + 1), unity.vertices(3 * k + 2)),
+                                 FrameConvention::kUnity);
+    for (int d = 0; d < 3; ++d) ros.add_vertices(static_cast<float>(p[d]));
+  }
+  for (std::uint32_t k : {0u, 2u, 1u}) ros.add_triangles(k);
+  EXPECT_TRUE(normal_toward_viewer(ros, viewer)) << "counter-clockwise in ROS faces the viewer";
+}
+
 }  // namespace
 }  // namespace arref::wire

@@ -89,6 +89,10 @@ void Connection::Close() {
   fd_ = -1;
 }
 
+void Connection::ShutdownWrite() {
+  if (fd_ >= 0) ::shutdown(fd_, SHUT_WR);
+}
+
 Status Connection::Send(const pb::ClientMessage& message) { return SendRaw(wire::EncodeFrame(message)); }
 
 Status Connection::SendRaw(const std::string& bytes) {

@@ -37,6 +37,8 @@ class Connection {
   // kResourceExhausted: timed out.
   Result<pb::ServerMessage> Receive(double timeout_s);
   void Close();
+  // Half-closes: the server sees the end of the stream but can still answer.
+  void ShutdownWrite();
   bool open() const { return fd_ >= 0; }
 
  private:

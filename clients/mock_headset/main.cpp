@@ -4,7 +4,12 @@
 #include <spdlog/sinks/stdout_color_sinks.h>
 #include <spdlog/spdlog.h>
 
+#include <algorithm>
+#include <chrono>
+#include <cmath>
 #include <iostream>
+#include <map>
+#include <thread>
 #include <nlohmann/json.hpp>
 
 #include "headset_client.h"
@@ -14,6 +19,7 @@ namespace {
 
 using namespace arref;
 using namespace arref::headset;
+using Clock = std::chrono::steady_clock;
 
 struct Args {
   HeadsetOptions options;
@@ -26,6 +32,8 @@ struct Args {
   int clients = 1;
   bool json = false;
   bool disconnect = false, corrupt = false, oversized = false, never_read = false;
+  double soak_s = 0;  // > 0: soak mode (scripts/soak.sh)
+  int bad_every = 5;
   std::string log_level = "warn";
 };
 
@@ -59,6 +67,11 @@ void AddFlags(CLI::App& app, Args& a) {
   app.add_flag("--oversized-message", a.oversized, "Misbehave: announce a 1 GiB message");
   app.add_flag("--never-read-replies", a.never_read, "Misbehave: never read, flood with Pings");
   app.add_flag("--json", a.json, "Print the outcome as JSON");
+  app.add_option("--soak", a.soak_s, "Soak: --clients headsets reconnect and register again and again for this many "
+                                     "seconds; prints throughput, latency per session and every error")
+      ->check(CLI::Range(0.0, 3600.0));
+  app.add_option("--bad-every", a.bad_every, "Soak: every Nth headset misbehaves (cycling through the misbehaviours)")
+      ->capture_default_str()->check(CLI::Range(2, 1000));
   app.add_option("--log-level", a.log_level, "trace, debug, info, warn, error")->capture_default_str();
 }
 
@@ -161,6 +174,90 @@ void PrintSummary(const std::vector<HeadsetRun>& runs, bool json) {
                            "p95 {:.0f} ms, max {:.0f} ms\n", ok, runs.size(), s.count, s.median_ms, s.p95_ms, s.max_ms);
 }
 
+// ---------------------------------------------------------------- soak
+
+struct SoakHeadset {
+  bool bad = false;
+  int sessions = 0, failed_sessions = 0;
+  std::vector<double> latency_ms;
+  std::map<std::string, int> errors;  // by code (and, for failed good sessions, by status)
+  std::vector<std::string> failures;  // the first few failed good sessions' statuses
+};
+
+double Percentile(std::vector<double> v, double q) {
+  if (v.empty()) return 0;
+  std::sort(v.begin(), v.end());
+  return v[std::min(v.size() - 1, static_cast<std::size_t>(std::ceil(q * static_cast<double>(v.size()))) - (q > 0))];
+}
+
+// Headset i loops until the deadline: a good one maps, registers three times and leaves; a bad
+// one (every bad_every-th) misbehaves, each time in the next way.
+void SoakLoop(const HeadsetScene& scene, HeadsetOptions options, int i, int bad_every, Clock::time_point deadline,
+              SoakHeadset* out) {
+  static const Misbehaviour kBad[] = {Misbehaviour::kCorruptFrame, Misbehaviour::kOversizedMessage,
+                                      Misbehaviour::kDisconnectMidUpload, Misbehaviour::kNeverReadReplies};
+  out->bad = i % bad_every == bad_every - 1;
+  options.client_name += "-" + std::to_string(i);
+  options.seed_index = i;
+  options.repeat = out->bad ? 1 : 3;
+  for (int round = 0; Clock::now() < deadline; ++round) {
+    options.misbehaviour = out->bad ? kBad[(i / bad_every + round) % std::size(kBad)] : Misbehaviour::kNone;
+    options.first_request_id = 1;
+    const HeadsetRun run = RunHeadset(scene, options);
+    ++out->sessions;
+    for (const auto& e : run.errors) ++out->errors[wire::ErrorCodeName(e.code())];
+    for (const auto& r : run.registrations)
+      if (r.result.status() == pb::RESULT_STATUS_OK || r.result.status() == pb::RESULT_STATUS_LOW_CONFIDENCE)
+        out->latency_ms.push_back(r.latency_ms);
+    if (!out->bad && !run.status.ok()) {
+      ++out->failed_sessions;
+      ++out->errors["good session failed: " + std::string(StatusCodeName(run.status.code()))];
+      if (out->failures.size() < 3) out->failures.push_back(run.status.ToString());
+    }
+  }
+}
+
+int RunSoak(const HeadsetScene& scene, const Args& a) {
+  const auto start = Clock::now();
+  const auto deadline = start + std::chrono::duration_cast<Clock::duration>(std::chrono::duration<double>(a.soak_s));
+  std::vector<SoakHeadset> headsets(static_cast<std::size_t>(a.clients));
+  std::vector<std::thread> threads;
+  for (int i = 0; i < a.clients; ++i)
+    threads.emplace_back(SoakLoop, std::cref(scene), a.options, i, a.bad_every, deadline, &headsets[i]);
+  for (auto& t : threads) t.join();
+  const double wall_s = std::chrono::duration<double>(Clock::now() - start).count();
+  std::vector<double> all, per_session_median, per_session_p95;
+  std::map<std::string, int> errors;
+  int good = 0, bad = 0, sessions = 0, failed = 0;
+  for (const auto& h : headsets) {
+    (h.bad ? bad : good)++;
+    sessions += h.sessions;
+    failed += h.failed_sessions;
+    all.insert(all.end(), h.latency_ms.begin(), h.latency_ms.end());
+    if (!h.bad && !h.latency_ms.empty()) {
+      per_session_median.push_back(Percentile(h.latency_ms, 0.5));
+      per_session_p95.push_back(Percentile(h.latency_ms, 0.95));
+    }
+    for (const auto& [code, n] : h.errors) errors[code] += n;
+  }
+  std::cout << fmt::format("soak: {} headsets ({} good, {} misbehaving) for {:.0f} s: {} sessions, {} results, "
+                           "{:.2f} results/s\n", a.clients, good, bad, wall_s, sessions, all.size(),
+                           static_cast<double>(all.size()) / wall_s);
+  std::cout << fmt::format("latency (request sent -> result): median {:.0f} ms, p95 {:.0f} ms, max {:.0f} ms\n",
+                           Percentile(all, 0.5), Percentile(all, 0.95), Percentile(all, 1.0));
+  std::cout << fmt::format("per good headset: median latency {:.0f} .. {:.0f} ms (min .. max over headsets), p95 "
+                           "{:.0f} .. {:.0f} ms\n", Percentile(per_session_median, 0), Percentile(per_session_median, 1),
+                           Percentile(per_session_p95, 0), Percentile(per_session_p95, 1));
+  std::cout << fmt::format("good sessions failed: {}\n", failed);
+  std::size_t shown = 0;  // the first few are enough; the counts by code follow
+  for (const auto& h : headsets)
+    for (const auto& f : h.failures)
+      if (shown++ < 5) std::cout << "  " << f << "\n";
+  std::cout << "errors the server sent (and failed good sessions), by code:\n";
+  for (const auto& [code, n] : errors) std::cout << fmt::format("  {:>6}  {}\n", n, code);
+  return failed == 0 ? 0 : 1;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -181,6 +278,7 @@ int main(int argc, char** argv) {
     spdlog::error("{}", scene.status().ToString());
     return 3;
   }
+  if (args.soak_s > 0) return RunSoak(*scene, args);
   std::vector<HeadsetRun> runs;
   if (args.clients > 1 || args.options.repeat > 1) {  // latency figures
     runs = RunHeadsets(*scene, args.options, args.clients);

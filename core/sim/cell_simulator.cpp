@@ -333,6 +333,57 @@ Iso3 SurfaceError(const DeviceVariation& device, const Vec3& centre, std::mt1993
   return Eigen::Translation3d(centre + shift * dir) * Eigen::AngleAxisd(angle, axis) * Eigen::Translation3d(-centre);
 }
 
+}  // namespace detail
+
+namespace {
+
+using detail::SurfaceError;
+
+// The surface cube at `corner` (world, a multiple of the surface size): which of the mesher's
+// update times meshed it, and the head-pose error it was moved by then. One draw per cube, so
+// the mesher and the measure of what it did to the robot (MeshDisplacementAdd) agree.
+struct CubeError {
+  int time_index = 0;
+  Iso3 T_moved_true = Iso3::Identity();
+};
+CubeError ErrorOfCube(const DeviceVariation& device, const Vec3& corner, double size, int updates, std::uint64_t rng_seed) {
+  std::uint64_t key = 0;
+  for (int a = 0; a < 3; ++a) key = SplitMix64(key ^ static_cast<std::uint64_t>(std::llround(corner[a] / size) + (1 << 20)));
+  auto surface_rng = Stream(rng_seed ^ key, 12);
+  CubeError out;
+  out.time_index = static_cast<int>(surface_rng() % static_cast<std::uint64_t>(updates));
+  out.T_moved_true = SurfaceError(device, corner + Vec3::Constant(size / 2), surface_rng);
+  return out;
+}
+
+// How far the mesh itself puts the robot from where it stands: the ADD (mean displacement of the
+// robot's surface points) of the rigid motion that best maps the robot's true surface onto where
+// the per-surface head-pose errors moved it (Umeyama 1991, Eigen::umeyama, no scale). A fit
+// against the true pose cannot be expected to beat it; it separates the mesh's error from the
+// method's in the bench.
+double MeshDisplacementAdd(const RobotModel& robot, const CellScene& scene, const Iso3& T_world_cell,
+                           const DeviceVariation& device, int updates, std::uint64_t rng_seed) {
+  auto posed = robot.PosedMesh(scene.joints);
+  if (!posed.ok() || posed->empty()) return -1.0;
+  const PointCloud points = SampleSurface(*posed, 2000, rng_seed);
+  const Iso3 T_world_base = T_world_cell * scene.T_cell_base;
+  const double size = device.surface_size_m;
+  Eigen::Matrix3Xd truth(3, static_cast<Eigen::Index>(points.size())), moved(3, truth.cols());
+  for (std::size_t i = 0; i < points.size(); ++i) {
+    const Vec3 p = T_world_base * points.points[i].cast<double>();
+    const Vec3 corner = (p / size).array().floor().matrix() * size;
+    truth.col(static_cast<Eigen::Index>(i)) = p;
+    moved.col(static_cast<Eigen::Index>(i)) = ErrorOfCube(device, corner, size, updates, rng_seed).T_moved_true * p;
+  }
+  const Eigen::Matrix4d T_moved_true = Eigen::umeyama(truth, moved, false);
+  const Eigen::Matrix3Xd fitted = (T_moved_true.topLeftCorner<3, 3>() * truth).colwise() + T_moved_true.topRightCorner<3, 1>();
+  return (fitted - truth).colwise().norm().mean();
+}
+
+}  // namespace
+
+namespace detail {
+
 bool HasArea(const TriangleMesh& mesh) {
   for (const Triangle& t : mesh.triangles)
     if ((mesh.vertices[t[1]] - mesh.vertices[t[0]]).cross(mesh.vertices[t[2]] - mesh.vertices[t[0]]).squaredNorm() > 0) return true;
@@ -343,7 +394,6 @@ bool HasArea(const TriangleMesh& mesh) {
 
 namespace {
 
-using detail::SurfaceError;
 using detail::HasArea;
 
 // The device's mesher: ray cast like ScanAndFuse, but depth that misses dark patches, fused by
@@ -386,11 +436,9 @@ Result<std::vector<Surface>> ScanAndMeshOpen3d(const CellScene& scene, const Rob
     const double time_s = (snapshot_after[static_cast<std::size_t>(k)] + 1) * kSecondsPerView;
     for (Surface& s : SplitIntoSurfaces((*meshes)[static_cast<std::size_t>(k)], size, time_s)) {
       const Vec3 corner = s.T_world_surface.translation();
-      std::uint64_t key = 0;
-      for (int a = 0; a < 3; ++a) key = SplitMix64(key ^ static_cast<std::uint64_t>(std::llround(corner[a] / size) + (1 << 20)));
-      auto surface_rng = Stream(rng_seed ^ key, 12);
-      if (static_cast<int>(surface_rng() % static_cast<std::uint64_t>(updates)) != k) continue;  // meshed at another time
-      const Iso3 error = SurfaceError(device, corner + Vec3::Constant(size / 2), surface_rng);
+      const CubeError cube = ErrorOfCube(device, corner, size, updates, rng_seed);
+      if (cube.time_index != k) continue;  // meshed at another time
+      const Iso3& error = cube.T_moved_true;
       auto decimated = DecimateWithOpen3d(s.mesh, target);
       if (!decimated.ok()) return decimated.status();
       s.mesh = std::move(*decimated);
@@ -508,6 +556,8 @@ Result<SimulatedCell> SimulateCell(const RobotModel& robot, const SimOptions& re
     if (!surfaces.ok()) return surfaces.status().WithContext("simulating the headset's scan (open3d mesher)");
     cell.surfaces = std::move(*surfaces);
     for (const Surface& s : cell.surfaces) triangles += s.mesh.triangles.size();
+    cell.mesh_error_add_m =
+        MeshDisplacementAdd(robot, *scene, cell.T_world_cell, device, std::max(1, device.surface_updates), rng_seed);
   } else {
     cell.voxel_m = VoxelSize(options.fusion);
     auto fused = ScanAndFuse(*scene, options, cell.T_world_cell, cell.voxel_m, rng_seed, rng, &cell.head_path_world);

@@ -2,6 +2,7 @@
 // ground truth. Cells and runs, statistics, the three experiments and the report.
 #pragma once
 
+#include <cmath>
 #include <memory>
 
 #include <map>
@@ -15,6 +16,8 @@ namespace arref::bench {
 
 constexpr double kSuccessAddM = 0.010;  // success = ADD <= 10 mm
 constexpr double kWrongAddM = 0.020;    // a result this far off is wrong (and must never be OK)
+constexpr double kMeshGoodM = 0.005;    // a cell whose mesh moved the robot less than this
+
 
 // How the scenes experiment's cells and seeds depart from the simulator's defaults.
 struct CellVariation {
@@ -94,6 +97,7 @@ struct Run {
   int iterations = 0;  // the method's ICP iterations; 0 where it does not report them (Open3D 0.16)
   double total_ms = 0;
   double peak_mb = 0;
+  double mesh_error_m = -1;  // the cell's SimulatedCell::mesh_error_add_m (-1: not measured)
 };
 
 // A run to do: which cell, seed pose and options.
@@ -124,6 +128,9 @@ struct Row {
   double register_median_ms = 0, total_median_ms = 0, mls_median_ms = 0;
   double iteration_median_ms = 0;  // register time / iterations, median over the runs that report them
   double peak_mb = 0;
+  double mesh_error_median_mm = std::nan("");  // over runs whose cell measured it
+  std::size_t mesh_good_runs = 0;               // runs on cells whose mesh error is under 5 mm
+  double success_mesh_good = 0;                 // share of those within ADD 10 mm
 };
 Row Summarise(const std::vector<const Run*>& runs, std::map<std::string, std::string> labels);
 

@@ -196,9 +196,17 @@ Row Summarise(const std::vector<const Run*>& runs, std::map<std::string, std::st
   row.labels = std::move(labels);
   row.runs = runs.size();
   std::vector<double> rms, add, translation, rotation, reg, total, mls, per_iteration;
-  std::size_t successes = 0, within_20 = 0, said_ok = 0;
+  std::size_t successes = 0, within_20 = 0, said_ok = 0, mesh_good_successes = 0;
+  std::vector<double> mesh_error;
   for (const Run* r : runs) {
     row.peak_mb = std::max(row.peak_mb, r->peak_mb);
+    if (r->mesh_error_m >= 0) {
+      mesh_error.push_back(r->mesh_error_m * 1e3);
+      if (r->mesh_error_m < kMeshGoodM) {
+        ++row.mesh_good_runs;
+        mesh_good_successes += r->ok && r->add_m <= kSuccessAddM;
+      }
+    }
     if (!r->ok) {
       ++row.errors;
       row.segmentation_flags += r->error.find("segmentation") != std::string::npos;
@@ -234,6 +242,8 @@ Row Summarise(const std::vector<const Run*>& runs, std::map<std::string, std::st
   row.translation_median_mm = Quantile(translation, 0.5), row.rotation_median_deg = Quantile(rotation, 0.5);
   row.register_median_ms = Quantile(reg, 0.5), row.total_median_ms = Quantile(total, 0.5), row.mls_median_ms = Quantile(mls, 0.5);
   row.iteration_median_ms = Quantile(per_iteration, 0.5);
+  row.mesh_error_median_mm = Quantile(mesh_error, 0.5);
+  if (row.mesh_good_runs) row.success_mesh_good = static_cast<double>(mesh_good_successes) / static_cast<double>(row.mesh_good_runs);
   return row;
 }
 

@@ -260,6 +260,7 @@ Status RobustnessExperiment(const Config& config, Tables* tables) {
               job.run = Label("robustness", method, "small", "", c, s);
               job.run.robot = robot.label, job.run.mesher = sim::MesherName(mesher);
               job.run.seed_family = sim::SeedFamilyName(family);
+              job.run.mesh_error_m = c.sim.mesh_error_add_m;
               job.run.params = fmt::format("{} {} {} seeds", robot.label, job.run.mesher, job.run.seed_family);
               jobs.push_back(job);
             }

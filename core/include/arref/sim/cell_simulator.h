@@ -153,6 +153,10 @@ struct SimulatedCell {
   std::vector<Vec3> head_path_world;
   Mesher mesher = Mesher::kOwn;
   DeviceVariation device;             // kOpen3d: the variation this cell's mesh was made with
+  // kOpen3d: how far the surfaces' own head-pose errors move the robot in the mesh (the ADD of
+  // the rigid motion that best explains them): what a fit against the true pose cannot beat.
+  // -1 where not measured (the own mesher, whose per-view errors are averaged in its TSDF).
+  double mesh_error_add_m = -1.0;
 };
 
 Result<SimulatedCell> SimulateCell(const RobotModel& robot, const SimOptions& options,

@@ -74,6 +74,20 @@ pb::ServerMessage ResultMessage(const ResultHeader& header, const std::optional<
   return message;
 }
 
+void FillCandidates(const std::vector<FoundInstance>& instances, int primary, FrameConvention frame, pb::Result* r) {
+  for (const FoundInstance& f : instances) {
+    pb::Candidate* c = r->add_candidates();
+    *c->mutable_t_world_base() = PoseToProto(f.report.T_world_base, frame);
+    MatrixToProto(f.report.T_world_base, c->mutable_t_world_base_internal());
+    c->set_status(ToProto(f.report.status));
+    c->set_message(f.report.status_reason);
+    c->set_score(f.report.score);
+    c->set_margin(f.report.margin);
+    c->set_inlier_fraction(f.report.inlier_fraction);
+  }
+  r->set_primary_candidate(primary);
+}
+
 Result<JointValues> JointsFromProto(const pb::JointState& m) {
   if (m.names_size() != m.positions_size())
     return Status::InvalidArgument(fmt::format("joint state has {} names but {} positions", m.names_size(),

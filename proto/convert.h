@@ -11,6 +11,7 @@
 #include "arref/base/frames.h"
 #include "arref/base/status.h"
 #include "arref/pipeline/pipeline.h"
+#include "arref/pipeline/seedless.h"
 #include "arref/robot/robot_model.h"
 #include "wire.h"
 
@@ -39,6 +40,9 @@ struct ResultHeader {
 // kCancelled) or FAILED result carrying the status' message.
 pb::ServerMessage ResultMessage(const ResultHeader& header, const std::optional<RegistrationReport>& report,
                                 const Status& status, FrameConvention frame);
+
+// A seedless result's instances (Result.candidates, primary_candidate), poses in `frame`.
+void FillCandidates(const std::vector<FoundInstance>& instances, int primary, FrameConvention frame, pb::Result* r);
 
 // Names and positions of a JointState; fails on a length mismatch or a non-finite position.
 Result<JointValues> JointsFromProto(const pb::JointState& m);

@@ -26,6 +26,7 @@
 #include "arref/base/frames.h"
 #include "arref/base/geometry.h"
 #include "arref/pipeline/pipeline.h"
+#include "arref/pipeline/seedless.h"
 #include "arref/robot/robot_model.h"
 #include "arref/base/status.h"
 #include "memory_budget.h"
@@ -33,7 +34,10 @@
 namespace arref::server {
 
 struct JobOutcome {
-  std::optional<RegistrationReport> report;  // set when the pipeline produced a pose
+  std::optional<RegistrationReport> report;  // set when the pipeline produced a pose (seedless: the primary instance's)
+  bool seedless = false;                     // the whole map was searched: instances below
+  std::vector<FoundInstance> instances;
+  int primary = -1;
   Status status;                             // why there is no report (kCancelled when cancelled)
   double queue_ms = 0.0;
   double run_ms = 0.0;
@@ -46,6 +50,8 @@ struct Job {
   JointValues joints;          // complete and validated
   TriangleMesh scene_world;    // snapshot of the session's map when the request came
   Iso3 T_world_seed = Iso3::Identity();
+  bool seedless = false;       // no seed: the whole map is searched (RegisterWholeMap)
+  InstanceHint hint;           // picks the primary instance of a seedless search
   RegistrationOptions options;
   FrameConvention result_frame = FrameConvention::kUnity;
   SteadyClock::time_point accepted_at = SteadyClock::now();

@@ -98,7 +98,10 @@ class OfflineSession {
                                            .session_id = j.session_id, .queue_ms = 0.0,
                                            .server_ms = outcome.run_ms, .scene_time_unix_s = j.scene_time_unix_s,
                                            .scene_headset_time_s = j.scene_headset_time_s};
-    return wire::ResultMessage(result_header, outcome.report, outcome.status, j.result_frame);
+    pb::ServerMessage result = wire::ResultMessage(result_header, outcome.report, outcome.status, j.result_frame);
+    if (outcome.seedless)  // as the live session answers it
+      wire::FillCandidates(outcome.instances, outcome.primary, j.result_frame, result.mutable_result());
+    return result;
   }
 
   const pb::RecordingHeader& header_;

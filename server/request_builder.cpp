@@ -81,6 +81,29 @@ Result<JointValues> RequestJoints(const pb::RegisterRequest& m, const ServedRobo
   return joints;
 }
 
+Result<InstanceHint> RequestHint(const pb::RegisterRequest& m) {
+  InstanceHint hint;
+  if (!m.has_gaze_point() && !m.has_wearer_position()) return hint;
+  FrameConvention frame = FrameConvention::kUnity;
+  if (m.hint_frame() != pb::FRAME_CONVENTION_UNSPECIFIED) {
+    auto f = wire::FromProto(m.hint_frame());
+    if (!f.ok()) return f.status().WithContext("RegisterRequest.hint_frame");
+    frame = *f;
+  }
+  auto point = [&](const pb::Vec3& v, const char* field) -> Result<Vec3> {
+    const Vec3 p(v.x(), v.y(), v.z());
+    if (!p.allFinite()) return Status::InvalidArgument(fmt::format("RegisterRequest.{} is not finite", field));
+    return PositionToRos(p, frame);
+  };
+  if (m.has_gaze_point()) {
+    ARREF_ASSIGN_OR_RETURN(hint.gaze_point_world, point(m.gaze_point(), "gaze_point"));
+  }
+  if (m.has_wearer_position()) {
+    ARREF_ASSIGN_OR_RETURN(hint.wearer_position_world, point(m.wearer_position(), "wearer_position"));
+  }
+  return hint;
+}
+
 Result<std::shared_ptr<Job>> BuildJob(const pb::RegisterRequest& m, const RobotRegistry& robots,
                                       const RegistrationOptions& configured, const SessionDefaults& session) {
   const ServedRobot* robot = robots.Find(m.robot_id());
@@ -94,11 +117,24 @@ Result<std::shared_ptr<Job>> BuildJob(const pb::RegisterRequest& m, const RobotR
     job->T_world_seed = *T;
   } else if (session.seed) {
     job->T_world_seed = *session.seed;
+  } else if (!m.method().empty()) {
+    // A named method: seedless ones search the whole map, seeded ones need the seed.
+    auto method = ParseMethod(m.method());
+    const MethodInfo* info = method.ok() ? FindMethod(*method) : nullptr;
+    if (!info || !info->seedless)
+      return Status::FailedPrecondition(fmt::format(
+          "no seed: method '{}' needs one; send SeedPose (or RegisterRequest.seed), or name no method (or a seedless "
+          "one) to search the whole map",
+          m.method()));
+    job->seedless = true;
   } else {
-    return Status::FailedPrecondition("no seed: send SeedPose (or RegisterRequest.seed) before registering");
+    job->seedless = true;  // the default with no seed: the whole map
   }
   ARREF_ASSIGN_OR_RETURN(job->joints, RequestJoints(m, *robot, robots, session));
   ARREF_ASSIGN_OR_RETURN(job->options, RequestOptions(m, configured));
+  if (job->seedless && m.method().empty()) job->options.method = Method::kArrefAuto;
+  if (const MethodInfo* info = FindMethod(job->options.method); info && info->seedless) job->seedless = true;
+  ARREF_ASSIGN_OR_RETURN(job->hint, RequestHint(m));
   if (m.result_frame() != pb::FRAME_CONVENTION_UNSPECIFIED) {
     auto result_frame = wire::FromProto(m.result_frame());
     if (!result_frame.ok()) return result_frame.status().WithContext("RegisterRequest.result_frame");

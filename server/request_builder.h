@@ -14,6 +14,7 @@
 #include "arref/base/geometry.h"
 #include "arref/base/status.h"
 #include "arref/pipeline/pipeline.h"
+#include "arref/pipeline/seedless.h"
 #include "job_scheduler.h"
 #include "robot_registry.h"
 #include "wire.h"
@@ -62,10 +63,15 @@ Result<RegistrationOptions> RequestOptions(const wire::pb::RegisterRequest& m, c
 Result<JointValues> RequestJoints(const wire::pb::RegisterRequest& m, const ServedRobot& robot,
                                   const RobotRegistry& robots, const SessionDefaults& session);
 
+// The request's optional hints (gaze point, wearer position) in world, ROS convention.
+Result<InstanceHint> RequestHint(const wire::pb::RegisterRequest& m);
+
 // A job for the request with everything but the scene, the session id and the callbacks,
 // which the session adds. Errors and the wire code they become (RequestErrorCode):
 //   kNotFound           unknown robot        -> UNKNOWN_ROBOT
-//   kFailedPrecondition no seed at all       -> NO_SEED
+//   kFailedPrecondition no seed at all for a method that needs one -> NO_SEED
+// With no seed anywhere and no method named (or a seedless one), the job searches the whole map
+// (Job::seedless, method arref-auto by default).
 //   kInvalidArgument    any bad field        -> INVALID_ARGUMENT
 // Checked in that order (seed before joints before options), as the protocol documents.
 Result<std::shared_ptr<Job>> BuildJob(const wire::pb::RegisterRequest& m, const RobotRegistry& robots,

@@ -46,6 +46,19 @@ JobOutcome RunRegistrationJob(Job& job, RobotRegistry& robots) {
     // A cancelled job reports no further progress: its next message is the CANCELLED result.
     if (job.on_progress && !Cancelled(&job.cancel)) job.on_progress(stage, 0.05 + 0.95 * fraction);
   };
+  if (job.seedless) {
+    auto whole = RegisterWholeMap(**model, job.scene_world, job.options, job.hint, progress, &job.cancel);
+    if (whole.status().code() == StatusCode::kCancelled || Cancelled(&job.cancel)) return finish(CancelledWhileRunning());
+    if (!whole.ok()) return finish(whole.status());
+    out.seedless = true;
+    out.primary = whole->primary;
+    out.instances = std::move(whole->instances);
+    if (out.primary < 0) return finish(Status::NotFound("the robot was not found in the map: " + whole->status_reason));
+    out.report = out.instances[static_cast<std::size_t>(out.primary)].report;
+    out.report->stages_run.insert(out.report->stages_run.begin(), whole->stages_run.begin(), whole->stages_run.end());
+    out.report->timings.insert(out.report->timings.begin(), whole->timings.begin(), whole->timings.end());
+    return finish(Status::Ok());
+  }
   auto report = RegisterScene(**model, job.scene_world, job.T_world_seed, job.options, progress, &job.cancel);
   // A cancel that arrives after the pipeline's last check still wins, as it did when every
   // stage boundary (the final "done" included) was a cancellation point.

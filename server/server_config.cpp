@@ -88,7 +88,7 @@ Status ReadLimits(const YAML::Node& n, ServerLimits& l) {
       n, "limits", {"max_message_bytes", "max_sessions", "max_pending_connections", "max_connections_per_peer",
                     "max_surfaces_per_session", "max_vertices_per_session", "max_triangles_per_session",
                     "max_mesh_bytes_per_session", "memory_budget_bytes", "max_requests_per_session",
-                    "max_send_queue_bytes", "max_send_queue_messages"}));
+                    "max_send_queue_bytes", "max_send_queue_messages", "max_map_triangles"}));
   Read(n, "max_message_bytes", l.max_message_bytes);
   Read(n, "max_sessions", l.max_sessions);
   Read(n, "max_pending_connections", l.max_pending_connections);
@@ -101,6 +101,7 @@ Status ReadLimits(const YAML::Node& n, ServerLimits& l) {
   Read(n, "max_requests_per_session", l.max_requests_per_session);
   Read(n, "max_send_queue_bytes", l.max_send_queue_bytes);
   Read(n, "max_send_queue_messages", l.max_send_queue_messages);
+  Read(n, "max_map_triangles", l.max_map_triangles);
   return Status::Ok();
 }
 

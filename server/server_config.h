@@ -32,6 +32,7 @@ struct ServerLimits {
   // default fits a 2 GiB unit (MemoryMax=2G) with room for the robot models and the allocator.
   std::size_t memory_budget_bytes = 1024u << 20;
   std::size_t max_requests_per_session = 8;       // accepted and not yet answered
+  std::size_t max_map_triangles = 1'000'000;      // a request with no seed searches the whole map: at most this
   std::size_t max_send_queue_bytes = 8u << 20;    // unsent replies before the session is dropped
   std::size_t max_send_queue_messages = 4096;
 };

@@ -303,6 +303,7 @@ void Session::FillHelloReply(pb::HelloReply* r) const {
   out->set_frame_timeout_s(c.frame_timeout_s);
   out->set_idle_timeout_s(c.idle_timeout_s);
   out->set_workers(static_cast<std::uint32_t>(c.workers));
+  out->set_max_map_triangles(l.max_map_triangles);
   for (const ParamRange& range : kParamRanges) {
     pb::ParamRange* p = out->add_params();
     p->set_name(range.name);
@@ -498,6 +499,15 @@ std::shared_ptr<Job> Session::MakeJob(const pb::RegisterRequest& m) {
       std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
   for (const auto& [sid, surface] : spatial_.surfaces())
     (*job)->scene_headset_time_s = std::max((*job)->scene_headset_time_s, surface.timestamp_s);
+  // A seedless search takes the whole map: its size is bounded (the surfaces stay).
+  const std::size_t triangles = (*job)->scene_world.triangles.size();
+  if ((*job)->seedless && triangles > ctx_.config.limits.max_map_triangles) {
+    SendError(pb::ERROR_CODE_LIMIT_EXCEEDED,
+              fmt::format("the map holds {} triangles, over limits.max_map_triangles = {} for a search of the whole map; "
+                          "send a seed (SeedPose or RegisterRequest.seed) or remove surfaces",
+                          triangles, ctx_.config.limits.max_map_triangles), rid);
+    return nullptr;
+  }
   AttachCallbacks(**job);
   return std::move(*job);
 }
@@ -523,8 +533,10 @@ void Session::AttachCallbacks(Job& job) {
                                     .server_ms = MsSince(done.accepted_at),
                                     .scene_time_unix_s = done.scene_time_unix_s,
                                     .scene_headset_time_s = done.scene_headset_time_s};
-    const auto frame =
-        wire::SharedFrame(wire::ResultMessage(header, outcome.report, outcome.status, done.result_frame));
+    pb::ServerMessage result = wire::ResultMessage(header, outcome.report, outcome.status, done.result_frame);
+    if (outcome.seedless)
+      wire::FillCandidates(outcome.instances, outcome.primary, done.result_frame, result.mutable_result());
+    const auto frame = wire::SharedFrame(result);
     spdlog::info("session {}: request {} {} ({:.0f} ms queued, {:.0f} ms running){}", done.session_id, done.request_id,
                  outcome.report ? "done" : outcome.status.ToString(), outcome.queue_ms, outcome.run_ms,
                  weak.expired() ? "; session gone, result dropped" : "");

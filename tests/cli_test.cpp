@@ -40,6 +40,23 @@ TEST_F(CliTest, SimulateWritesMeshAndTruth) {
   EXPECT_GT(std::filesystem::file_size(base + ".ply"), 10000u);
 }
 
+// With no seed the whole map is searched (arref-auto): the cell's one robot is found, listed as a
+// candidate with its own error, and a method that needs a seed says so.
+TEST_F(CliTest, RegisterWithNoSeedSearchesTheWholeMap) {
+  const std::string base = Simulate(12, "--seeds 1");
+  const auto r = RunCommand(Arref() + " register --whole-map --scene " + base + ".ply --truth " + base + ".json --json");
+  ASSERT_TRUE(r.exit_code == 0 || r.exit_code == 1) << r.err;
+  const auto j = nlohmann::json::parse(r.out);
+  EXPECT_EQ(j["method"], "arref-auto");
+  ASSERT_GE(j["candidates"].size(), 1u);
+  EXPECT_LT(j["add_m"].get<double>(), 0.02);
+  EXPECT_LT(j["candidates"][0]["add_m"].get<double>(), 0.02);
+  EXPECT_GT(j["candidates_tried"].get<int>(), 0);
+  const auto seeded = RunCommand(Arref() + " register --whole-map --method pcl-icp --scene " + base + ".ply");
+  EXPECT_EQ(seeded.exit_code, 3) << seeded.out;
+  EXPECT_NE(seeded.err.find("method 'pcl-icp' needs one"), std::string::npos) << seeded.err;
+}
+
 // PCL ICP with the paper's parameters from user-like seeds. Thresholds from
 // `scripts/measure-icp.sh 10 10` (100 runs): built-in robot median ADD 10.4 mm, 99 % within
 // 20 mm; vendor KR5 median 23.1 mm, p95 29.0 mm (the unseen back of the robot pulls ICP off).

@@ -16,6 +16,7 @@
 #include "arref/base/cancel.h"
 #include "arref/fusion/robot_side.h"
 #include "arref/pipeline/pipeline.h"
+#include "arref/pipeline/seedless.h"
 #include "arref/robot/robot_model.h"
 #include "arref/scene/metrics.h"
 #include "arref/scene/spatial_mesh.h"
@@ -170,6 +171,17 @@ TEST(RegisterSceneMethods, EveryMethodRunsOnOneScene) {
     // The global methods ignore the seed but for the crop's centre, and draw their bases at
     // random: on seed 1's crop super4pcs finds no congruent set, on seed 0's it does. The local
     // ones start from seed 1, where arref-icp-fast registers (10.9 mm from seed 0).
+    if (m.seedless) {  // no seed: the whole cell is searched (pipeline/seedless.h)
+      const auto whole = RegisterWholeMap(*c.side, c.scene_world, o);
+      EXPECT_TRUE(whole.ok()) << whole.status().ToString();
+      if (!whole.ok()) continue;
+      EXPECT_EQ(whole->method, m.name);
+      if (m.method == Method::kArrefAuto) {
+        ASSERT_GE(whole->primary, 0) << whole->status_reason;
+        EXPECT_LT(AddOf(c, whole->instances[static_cast<std::size_t>(whole->primary)].report.T_world_base), kAddGoalM);
+      }
+      continue;
+    }
     const bool global = m.method == Method::kSuper4pcs || m.method == Method::kPcl4pcs ||
                         m.method == Method::kPclK4pcs || m.method == Method::kFpfhRansac;
     const auto registered = RegisterScene(*c.side, c.scene_world, c.cell.seeds[global ? 0 : 1], o);

@@ -2,6 +2,8 @@
 // options; each bad field is refused with an error that names it, mapped to its wire code.
 #include <gtest/gtest.h>
 
+#include <cmath>
+
 #include <map>
 #include <string>
 
@@ -164,10 +166,34 @@ TEST_F(RequestBuilder, UnknownRobot) {
   ExpectRefused(m, pb::ERROR_CODE_UNKNOWN_ROBOT, "robot 'r2d2' is not served here (served: kr5)");
 }
 
-TEST_F(RequestBuilder, NoSeed) {
+TEST_F(RequestBuilder, NoSeedForAMethodThatNeedsOne) {
   pb::RegisterRequest m = GoodRequest();
   m.clear_seed();
-  ExpectRefused(m, pb::ERROR_CODE_NO_SEED, "no seed");
+  m.set_method("pcl-icp");
+  ExpectRefused(m, pb::ERROR_CODE_NO_SEED, "no seed: method 'pcl-icp' needs one");
+}
+
+TEST_F(RequestBuilder, NoSeedAndNoMethodSearchesTheWholeMapWithTheHints) {
+  pb::RegisterRequest m = GoodRequest();
+  m.clear_seed();
+  m.mutable_gaze_point()->set_x(1.0);  // Unity: x right, y up, z forward
+  m.mutable_gaze_point()->set_y(0.5);
+  m.mutable_gaze_point()->set_z(2.0);
+  auto job = Build(m);
+  ASSERT_TRUE(job.ok()) << job.status().ToString();
+  EXPECT_TRUE((*job)->seedless);
+  EXPECT_EQ((*job)->options.method, Method::kArrefAuto);
+  ASSERT_TRUE((*job)->hint.gaze_point_world.has_value());
+  EXPECT_TRUE((*job)->hint.gaze_point_world->isApprox(Vec3(2.0, -1.0, 0.5)));  // ROS: (z, -x, y)
+  EXPECT_FALSE((*job)->hint.wearer_position_world.has_value());
+  // A seedless method named, seed or not, searches the whole map too.
+  pb::RegisterRequest seeded = GoodRequest();
+  seeded.set_method("arref-auto");
+  auto whole = Build(seeded);
+  ASSERT_TRUE(whole.ok()) << whole.status().ToString();
+  EXPECT_TRUE((*whole)->seedless);
+  m.mutable_wearer_position()->set_x(std::nan(""));
+  ExpectRefused(m, pb::ERROR_CODE_INVALID_ARGUMENT, "wearer_position is not finite");
 }
 
 TEST_F(RequestBuilder, BadSeed) {

@@ -30,6 +30,8 @@
 #include <thread>
 #include <vector>
 
+#include "arref/scene/metrics.h"
+#include "arref/sim/room_simulator.h"
 #include "frame_decoder.h"
 #include "headset_client.h"
 #include "test_support.h"
@@ -59,6 +61,7 @@ struct ServerSettings {
   std::size_t max_sessions = 64;
   std::size_t max_send_queue_bytes = 8u << 20;
   double shutdown_grace_s = 60;
+  std::size_t max_map_triangles = 1'000'000;
   std::size_t max_connections_per_peer = 256;  // every test client comes from 127.0.0.1
   std::string server_yaml, limits_yaml;  // more keys of those sections, each line "  key: value\n"
 };
@@ -68,7 +71,7 @@ std::string ConfigYaml(const ServerSettings& s) {
   y << "server:\n  address: 127.0.0.1\n  port: 0\n  workers: " << s.workers << "\n  queue_size: " << s.queue_size
     << "\n  shutdown_grace_s: " << s.shutdown_grace_s << "\n  idle_timeout_s: 300\n" << s.server_yaml
     << "limits:\n  max_sessions: " << s.max_sessions << "\n  max_send_queue_bytes: " << s.max_send_queue_bytes
-    << "\n  max_connections_per_peer: " << s.max_connections_per_peer << "\n" << s.limits_yaml << "robots:\n  - id: kr5\n    urdf: builtin\n";
+    << "\n  max_connections_per_peer: " << s.max_connections_per_peer << "\n  max_map_triangles: " << s.max_map_triangles << "\n" << s.limits_yaml << "robots:\n  - id: kr5\n    urdf: builtin\n";
   return y.str();
 }
 
@@ -324,6 +327,102 @@ TEST(ServerIntegration, RecoversTruePoseFromUserLikeSeeds) {
   EXPECT_GE(ok, kMinSuccessRate * total) << ok << " of " << total << " within " << kAddSuccessM * 1e3 << " mm ADD";
 }
 
+// ---------------------------------------------------------------- seedless
+
+// A simulated room with two arms of the built-in robot, as a headset maps it.
+struct Room {
+  sim::SimulatedRoom sim;
+  HeadsetScene scene;
+};
+
+Room TwoArmRoom() {
+  static const RobotModel robot = [] {
+    auto r = RobotModel::Load(testing::BuiltinRobotUrdf());
+    if (!r.ok()) throw std::runtime_error(r.status().ToString());
+    return std::move(r).value();
+  }();
+  sim::RoomOptions options;
+  options.arms = 2;
+  options.max_side_m = 6.0;
+  auto room = sim::SimulateRoom({&robot, nullptr}, options, 3);
+  if (!room.ok()) throw std::runtime_error(room.status().ToString());
+  Room out{std::move(*room), {}};
+  out.scene.surfaces = out.sim.surfaces;
+  return out;
+}
+
+void SetJoints(const JointValues& joints, pb::RegisterRequest* m) {
+  for (const auto& [name, value] : joints) {
+    m->mutable_joints()->add_names(name);
+    m->mutable_joints()->add_positions(value);
+  }
+}
+
+TEST(ServerIntegration, ARequestWithNoSeedFindsBothArmsOfARoom) {
+  ServerProcess server;
+  const Room room = TwoArmRoom();
+  ScriptedHeadset h(server);
+  ASSERT_TRUE(h.Hello().has_hello_reply());
+  h.Upload(room.scene);
+  pb::ClientMessage m;
+  m.mutable_register_request()->set_request_id(5);
+  m.mutable_register_request()->set_robot_id("kr5");
+  SetJoints(room.sim.arms[0].joints, m.mutable_register_request());
+  m.mutable_register_request()->set_result_frame(pb::FRAME_CONVENTION_ROS);
+  h.Send(m);
+  const pb::ServerMessage reply = h.AwaitResult(5);
+  ASSERT_TRUE(reply.has_result());
+  const pb::Result& r = reply.result();
+  EXPECT_EQ(r.method(), "arref-icp");  // each instance is arref-icp's fit
+  EXPECT_TRUE(std::any_of(h.seen().begin(), h.seen().end(), [](const pb::ServerMessage& s) {
+    return s.has_progress() && s.progress().stage().find("candidate") != std::string::npos;
+  }));
+  ASSERT_GE(r.candidates_size(), 2) << r.message();
+  ASSERT_GE(r.primary_candidate(), 0);
+  // Every arm has a candidate on it (the robot's points under both poses within 2 cm on average).
+  auto robot = RobotModel::Load(testing::BuiltinRobotUrdf());
+  ASSERT_TRUE(robot.ok());
+  auto posed = robot->PosedMesh(room.sim.arms[0].joints);
+  ASSERT_TRUE(posed.ok());
+  for (const sim::RoomArm& arm : room.sim.arms) {
+    double best = 1e9;
+    for (const pb::Candidate& c : r.candidates()) {
+      auto T = wire::MatrixFromProto(c.t_world_base_internal());
+      ASSERT_TRUE(T.ok());
+      best = std::min(best, ComparePoses(*T, arm.T_world_base, posed->vertices).add_m);
+    }
+    EXPECT_LT(best, 0.02) << "arm at " << arm.T_world_base.translation().transpose();
+  }
+}
+
+TEST(ServerIntegration, AMapOverTheLimitIsRefusedAndKeepsItsSurfaces) {
+  ServerSettings settings;
+  settings.max_map_triangles = 1000;
+  ServerProcess server(settings);
+  const Room room = TwoArmRoom();
+  ScriptedHeadset h(server);
+  const pb::ServerMessage hello = h.Hello();
+  ASSERT_TRUE(hello.has_hello_reply());
+  EXPECT_EQ(hello.hello_reply().limits().max_map_triangles(), 1000u);  // announced before it bites
+  h.Upload(room.scene);
+  h.Request(1);
+  const pb::ServerMessage error = h.AwaitError();
+  EXPECT_EQ(error.error().code(), pb::ERROR_CODE_LIMIT_EXCEEDED);
+  EXPECT_NE(error.error().message().find("limits.max_map_triangles = 1000"), std::string::npos) << error.error().message();
+  EXPECT_FALSE(error.error().fatal());
+  // The surfaces are still there: a seeded request on them is answered.
+  h.Seed(room.sim.arms[0].T_world_base * Iso3(Eigen::Translation3d(0.05, 0.05, 0.1)));
+  pb::ClientMessage m;
+  m.mutable_register_request()->set_request_id(2);
+  m.mutable_register_request()->set_robot_id("kr5");
+  SetJoints(room.sim.arms[0].joints, m.mutable_register_request());
+  h.Send(m);
+  const pb::ServerMessage reply = h.AwaitResult(2);
+  ASSERT_TRUE(reply.has_result());
+  EXPECT_EQ(reply.result().candidates_size(), 0);
+  EXPECT_NE(reply.result().status(), pb::RESULT_STATUS_CANCELLED);
+}
+
 TEST(ServerIntegration, QuantizedVerticesAndRepeatedRequests) {
   ServerProcess server;
   HeadsetOptions o = Options(server);
@@ -481,10 +580,20 @@ TEST(ServerIntegration, ClearErrorsForBadRequests) {
   ASSERT_EQ(hello.hello_reply().robots_size(), 1);
   EXPECT_EQ(hello.hello_reply().robots(0).id(), "kr5");
   EXPECT_EQ(hello.hello_reply().robots(0).joint_names_size(), 6);
-  h.Request(1);
+  {  // a method that needs a seed, with none: NO_SEED
+    pb::ClientMessage seeded;
+    seeded.mutable_register_request()->set_request_id(1);
+    seeded.mutable_register_request()->set_robot_id("kr5");
+    seeded.mutable_register_request()->set_method("pcl-icp");
+    h.Send(seeded);
+  }
   auto e = h.AwaitError();
   EXPECT_EQ(e.error().code(), pb::ERROR_CODE_NO_SEED);
   EXPECT_EQ(e.error().request_id(), 1u);
+  h.Request(11);  // no seed and no method: a search of the whole map, which holds nothing yet
+  e = h.AwaitError();
+  EXPECT_EQ(e.error().code(), pb::ERROR_CODE_NO_SCENE);
+  EXPECT_EQ(e.error().request_id(), 11u);
   h.Seed(Scene(1).seeds[0]);
   h.Request(2);
   e = h.AwaitError();

@@ -45,6 +45,8 @@ struct BenchArgs {
   std::string heldout_robot = "sia10d";
   int robust_cells = 4;
   int robust_seeds = 2;
+  std::string auto_methods = "arref-auto,sliding-box-shot,super4pcs,fpfh-ransac";
+  int auto_rooms = 2;
   std::string command_line;
 };
 
@@ -87,6 +89,9 @@ int Run(const BenchArgs& args) {
   rc.methods = *robust_methods, rc.meshers = args.meshers, rc.seed_families = args.seed_families;
   rc.split = args.split, rc.heldout_robot = args.heldout_robot, rc.cells = args.robust_cells, rc.seeds = args.robust_seeds;
   rc.package_path = args.robot.package_path;
+  auto auto_methods = ParseMethodList(args.auto_methods, "--auto-methods");
+  if (!auto_methods.ok()) return Fail(auto_methods.status());
+  config.auto_methods = *auto_methods, config.auto_rooms = args.auto_rooms;
   rc.robots = args.robots;
   if (rc.robots.empty()) {
     // The built-in robot, and every vendor package beside the checkout (when it is there).
@@ -125,6 +130,8 @@ int Run(const BenchArgs& args) {
   // Only when asked for: it simulates cells of every robot with both meshers (minutes).
   if (args.only.find("robustness") != std::string::npos)
     if (auto st = bench::RobustnessExperiment(config, &tables); !st.ok()) return Fail(st.WithContext("robustness"));
+  if (args.only.find("auto") != std::string::npos)
+    if (auto st = bench::AutoExperiment(config, &tables); !st.ok()) return Fail(st.WithContext("auto"));
   const double minutes = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() / 60;
   tables.notes.push_back(fmt::format("{} runs in {:.1f} min with {} parallel job(s)", tables.runs.size(), minutes, config.jobs));
   if (config.quick) tables.notes.push_back("--quick: a subset (small configuration only, fewer cells, seeds and parameter sets)");
@@ -182,8 +189,8 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
                   "Scenes experiment: write a PNG of each cell's first result per method into this folder "
                   "(arref register --image's picture)");
   cmd->add_option("--only", args->only,
-                  "Run only these experiments: sweep, perturb, scenes, robustness (comma-separated; robustness runs "
-                  "only when named)");
+                  "Run only these experiments: sweep, perturb, scenes, robustness, auto (comma-separated; robustness "
+                  "and auto run only when named)");
   cmd->add_option("--robots", args->robots,
                   "Robustness: robot URDFs, comma-separated, 'builtin' for the built-in robot (default: builtin and "
                   "every URDF under ../shared/robots/*/urdf/, which is also the default --package-path)")
@@ -202,6 +209,11 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
   cmd->add_option("--robust-cells", args->robust_cells, "Robustness: cells per robot and mesher (--quick: 1)")
       ->check(CLI::Range(1, 1000))->capture_default_str();
   cmd->add_option("--robust-seeds", args->robust_seeds, "Robustness: seeds per family and cell (--quick: 1)")
+      ->check(CLI::Range(1, 1000))->capture_default_str();
+  cmd->add_option("--auto-methods", args->auto_methods,
+                  "Auto experiment (seedless, whole rooms; runs only when --only names it): methods, comma-separated")
+      ->capture_default_str();
+  cmd->add_option("--auto-rooms", args->auto_rooms, "Auto experiment: rooms per robot, arm count (0, 1, 2) and mesher")
       ->check(CLI::Range(1, 1000))->capture_default_str();
   cmd->callback([args, exit_code, cmd] {
     args->command_line = "arref bench";

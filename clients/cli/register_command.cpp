@@ -8,6 +8,7 @@
 #include "arref/scene/metrics.h"
 #include "arref/pipeline/pipeline.h"
 #include "arref/scene/spatial_mesh.h"
+#include "arref/pipeline/seedless.h"
 #include "cli_common.h"
 #include "commands.h"
 #include "global_options.h"
@@ -35,12 +36,14 @@ struct RegisterArgs {
   std::string image;         // PNG of the result
   int image_width = 1280;    // both views side by side, each 4:3
   std::string export_robot;  // the posed robot in the scene's frame
+  bool whole_map = false;
 };
 
 struct Inputs {
   std::optional<nlohmann::json> truth;
   JointValues joints;
   Iso3 T_world_seed;
+  bool seedless = false;  // no seed anywhere (or --whole-map): the whole map is searched
   Iso3 T_world_base_true;
   std::vector<Vec3> head_path_world;
 };
@@ -72,7 +75,9 @@ Result<Inputs> ReadInputs(const RegisterArgs& args, FrameConvention frame) {
     in.joints = *truth_joints;
   }
 
-  if (!args.seed.empty()) {
+  if (args.whole_map) {
+    in.seedless = true;
+  } else if (!args.seed.empty()) {
     auto seed = ParsePose(args.seed, frame);
     if (!seed.ok()) return seed.status().WithContext("--seed");
     in.T_world_seed = *seed;
@@ -87,7 +92,7 @@ Result<Inputs> ReadInputs(const RegisterArgs& args, FrameConvention frame) {
     if (!seed.ok()) return seed.status().WithContext("--truth seeds[" + std::to_string(args.seed_index) + "]");
     in.T_world_seed = *seed;
   } else {
-    return Status::InvalidArgument("no seed: pass --seed x,y,z,qx,qy,qz,qw or a --truth file with seeds");
+    in.seedless = true;  // no seed: the whole map is searched
   }
   if (!args.head_path.empty()) {
     auto path = ReadHeadPath(args.head_path);
@@ -178,6 +183,55 @@ ProgressFn TerminalProgress() {
   };
 }
 
+// No seed: the whole map is searched (arref-auto unless a seedless method is named); the primary
+// instance's report, and every instance found under "candidates".
+int RunWholeMap(const RegisterArgs& args, const Inputs& inputs, const RobotSide& model, const TriangleMesh& scene,
+                RegistrationOptions options, FrameConvention frame) {
+  const MethodInfo* info = FindMethod(options.method);
+  if (!info || !info->seedless) {
+    if (args.method != MethodName(RegistrationOptions{}.method))
+      return Fail(Status::InvalidArgument(fmt::format(
+          "no seed: method '{}' needs one; pass --seed x,y,z,qx,qy,qz,qw, a --truth file with seeds, or a seedless "
+          "--method (arref-auto, sliding-box-shot)", args.method)));
+    options.method = Method::kArrefAuto;
+  }
+  auto whole = RegisterWholeMap(model, scene, options, {}, TerminalProgress());
+  if (!whole.ok()) return Fail(whole.status());
+  nlohmann::json j;
+  if (whole->primary >= 0) j = ReportJson(whole->instances[static_cast<std::size_t>(whole->primary)].report, frame);
+  j["status"] = ResultStatusName(whole->status);
+  if (!whole->status_reason.empty()) j["status_reason"] = whole->status_reason;
+  j["method"] = whole->method;
+  j["candidates_tried"] = whole->candidates;
+  j["whole_map_stages"] = whole->stages_run;
+  nlohmann::json timings;
+  for (const auto& t : whole->timings) timings[t.stage] = t.ms;
+  timings["total"] = whole->total_ms();
+  j["whole_map_timings_ms"] = timings;
+  j["candidates"] = nlohmann::json::array();
+  for (const FoundInstance& f : whole->instances) {
+    nlohmann::json c = ReportJson(f.report, frame);
+    nlohmann::json entry = {{"status", c["status"]}, {"position", c["position"]}, {"orientation", c["orientation"]},
+                            {"T_world_base", c["T_world_base"]}, {"inlier_fraction", c["inlier_fraction"]}};
+    for (const char* key : {"score", "margin", "status_reason"})
+      if (c.contains(key)) entry[key] = c[key];
+    if (inputs.truth) entry["add_m"] = ComparePoses(f.report.T_world_base, inputs.T_world_base_true, model.samples().points).add_m;
+    j["candidates"].push_back(entry);
+  }
+  if (inputs.truth && whole->primary >= 0) {
+    const PoseError e = ComparePoses(whole->instances[static_cast<std::size_t>(whole->primary)].report.T_world_base,
+                                     inputs.T_world_base_true, model.samples().points);
+    j["translation_error_m"] = e.translation_m;
+    j["rotation_error_deg"] = e.rotation_deg;
+    j["add_m"] = e.add_m;
+  }
+  if (args.json)
+    std::cout << j.dump(2) << std::endl;
+  else
+    PrintHuman(j);
+  return whole->status == ResultStatus::kFailed ? kExitRegistrationFailed : kExitOk;
+}
+
 int Run(const RegisterArgs& args) {
   auto frame = ParseFrameConvention(args.frame);
   if (!frame.ok()) return Fail(frame.status());
@@ -203,6 +257,8 @@ int Run(const RegisterArgs& args) {
   MeshToRos(*scene, *frame);
 
   options.head_path_world = inputs->head_path_world;
+  const MethodInfo* info = FindMethod(options.method);
+  if (inputs->seedless || (info && info->seedless)) return RunWholeMap(args, *inputs, **model, *scene, options, *frame);
   auto report = RegisterScene(**model, *scene, inputs->T_world_seed, options, TerminalProgress());
   if (!report.ok()) return Fail(report.status());
   if (Status s = WriteResultFiles(args, *robot, inputs->joints, *scene, *report, inputs->T_world_seed, *frame); !s.ok())
@@ -234,7 +290,10 @@ void AddRegisterCommand(CLI::App& app, int* exit_code) {
   CLI::App* cmd = app.add_subcommand("register", "Register a robot model to a headset mesh");
   AddRobotOptions(*cmd, args->robot);
   cmd->add_option("--scene", args->scene, "Headset mesh (PLY, OBJ or STL)")->required();
-  cmd->add_option("--seed", args->seed, "Seed pose x,y,z,qx,qy,qz,qw (default: a seed from --truth)");
+  cmd->add_option("--seed", args->seed,
+                  "Seed pose x,y,z,qx,qy,qz,qw (default: a seed from --truth; with neither, the whole map is searched)");
+  cmd->add_flag("--whole-map", args->whole_map,
+                "Search the whole map with no seed (arref-auto, or a seedless --method), even with --truth seeds");
   cmd->add_option("--seed-index", args->seed_index, "Which of the truth file's seeds to use")->capture_default_str();
   cmd->add_option("--frame", args->frame, "Convention of seed, mesh and output: ros or unity")
       ->check(CLI::IsMember({"ros", "unity"}))->capture_default_str();

@@ -68,6 +68,17 @@ std::vector<MethodInfo> ProductMethods() {
        },
        .visible_model_only = true,
        .uses_expected_surface = true},
+      {.method = Method::kArrefAuto,
+       .name = "arref-auto",
+       .description = "arref's default with no seed: candidate bases from the whole map's supports and occupancy, "
+                      "arref-icp from each, every distinct instance ranked (RegisterWholeMap)",
+       .run = [](const MethodInput&) -> Result<RegistrationOutput> {
+         return Status::InvalidArgument("arref-auto searches the whole map and takes no seed: send the request without one");
+       },
+       .visible_model_only = true,
+       .uses_expected_surface = true,
+       .status_calibrated = true,
+       .seedless = true},
   };
 }
 
@@ -136,6 +147,14 @@ std::vector<MethodInfo> BaselineMethods() {
        .name = "fpfh-ransac",
        .description = "segmentation, FPFH features + RANSAC with prerejection (PCL), then PCL ICP",
        .run = GlobalMethod(GlobalAligner::kFpfhRansac)},
+      {.method = Method::kSlidingBoxShot,
+       .name = "sliding-box-shot",
+       .description = "the paper's proposal with no seed: a robot-sized box slid over the map, SHOT descriptors "
+                      "matched against the model's, PCL ICP from the best box at four yaws",
+       .run = [](const MethodInput& in) {
+         return RegisterSlidingBoxShot(in.model_base, in.scene_world, in.options.sliding_box, in.options.icp);
+       },
+       .seedless = true},
   };
   return out;
 }

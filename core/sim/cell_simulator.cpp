@@ -14,6 +14,7 @@
 #include "arref/scene/sampling.h"
 #include "arref/scene/spatial_mesh.h"
 #include "open3d_mesher.h"
+#include "scan_common.h"
 #include "scene_builder.h"
 #include "arref/fusion/tsdf.h"
 
@@ -109,6 +110,10 @@ double VoxelSize(const FusionOptions& f) {
   return std::clamp(std::sqrt(2.0 * kSurfacePerVolume / f.triangles_per_m3), kMinVoxel, kMaxVoxel);
 }
 
+}  // namespace
+
+namespace detail {
+
 std::uint64_t SplitMix64(std::uint64_t x) {
   x += 0x9E3779B97F4A7C15ull;
   x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
@@ -135,11 +140,21 @@ void AddRangeNoise(RangeImage& range, const ScanOptions& scan, std::uint64_t see
   }
 }
 
+}  // namespace detail
+
+namespace {
+
+using detail::SplitMix64;
+using detail::AddRangeNoise;
+
 struct View {
   Iso3 T_cell_camera_true;      // where the depth image was taken
   Iso3 T_cell_camera_believed;  // where head tracking says it was: used for fusion
 };
 
+}  // namespace
+
+namespace detail {
 // Small head-tracking error, expressed in the camera frame.
 Iso3 RandomJitter(const ScanOptions& scan, std::mt19937_64& rng) {
   std::normal_distribution<double> rot(0.0, scan.pose_jitter_deg * kDeg), pos(0.0, scan.pose_jitter_m);
@@ -149,6 +164,12 @@ Iso3 RandomJitter(const ScanOptions& scan, std::mt19937_64& rng) {
   T.translation() = Vec3(pos(rng), pos(rng), pos(rng));
   return T;
 }
+
+}  // namespace detail
+
+namespace {
+
+using detail::RandomJitter;
 
 // The walker circles the robot's front (+x) on an arc; what lies behind stays unseen.
 std::vector<View> WalkingPath(const ScanOptions& scan, const Iso3& T_cell_base, std::mt19937_64& rng) {
@@ -214,7 +235,16 @@ Result<TriangleMesh> ScanAndFuse(const CellScene& scene, const SimOptions& optio
 
 // Random streams of their own, one per quantity (DeviceVariation) or purpose: adding a draw to
 // one leaves every other as it was, and the cell's main stream (layout, walk, seeds) untouched.
+}  // namespace
+
+namespace detail {
 std::mt19937_64 Stream(std::uint64_t seed, std::uint64_t purpose) { return std::mt19937_64(SplitMix64(seed ^ SplitMix64(purpose))); }
+}  // namespace detail
+
+namespace {
+
+using detail::Stream;
+
 constexpr std::uint64_t kDeviceStream = 0xDE71CE;
 
 double Uniform(std::uint64_t seed, std::uint64_t purpose, double lo, double hi) {
@@ -291,6 +321,9 @@ void DropPixels(RangeImage& range, const PinholeCamera& camera, const Iso3& T_ce
     }
 }
 
+}  // namespace
+
+namespace detail {
 // A rigid error up to max_m and max_deg (uniform magnitudes, uniform directions) about `centre`.
 Iso3 SurfaceError(const DeviceVariation& device, const Vec3& centre, std::mt19937_64& rng) {
   std::normal_distribution<double> g(0.0, 1.0);
@@ -299,6 +332,12 @@ Iso3 SurfaceError(const DeviceVariation& device, const Vec3& centre, std::mt1993
   const double angle = device.surface_error_max_deg * kDeg * unit(rng), shift = device.surface_error_max_m * unit(rng);
   return Eigen::Translation3d(centre + shift * dir) * Eigen::AngleAxisd(angle, axis) * Eigen::Translation3d(-centre);
 }
+
+}  // namespace detail
+
+namespace {
+
+using detail::SurfaceError;
 
 // The surface cube at `corner` (world, a multiple of the surface size): which of the mesher's
 // update times meshed it, and the head-pose error it was moved by then. One draw per cube, so
@@ -341,11 +380,21 @@ double MeshDisplacementAdd(const RobotModel& robot, const CellScene& scene, cons
   return (fitted - truth).colwise().norm().mean();
 }
 
+}  // namespace
+
+namespace detail {
+
 bool HasArea(const TriangleMesh& mesh) {
   for (const Triangle& t : mesh.triangles)
     if ((mesh.vertices[t[1]] - mesh.vertices[t[0]]).cross(mesh.vertices[t[2]] - mesh.vertices[t[0]]).squaredNorm() > 0) return true;
   return false;
 }
+
+}  // namespace detail
+
+namespace {
+
+using detail::HasArea;
 
 // The device's mesher: ray cast like ScanAndFuse, but depth that misses dark patches, fused by
 // Open3D, and cut into surface cubes that are each meshed at their own time (the spatial mapper

@@ -69,6 +69,9 @@ struct Config {
   // Non-empty: the scenes experiment writes a picture of each cell's first seed's result per
   // method there (scenes_<method>_<kind>_<cell>.png).
   std::string images_dir;
+  // The auto experiment (seedless, whole rooms): its robots, meshers and split are robustness's.
+  std::vector<std::string> auto_methods = {"arref-auto", "sliding-box-shot", "super4pcs", "fpfh-ransac"};
+  int auto_rooms = 2;  // per robot, arm count (0, 1, 2) and mesher
 };
 
 // A simulated cell with everything a run needs.
@@ -146,6 +149,7 @@ Status SweepExperiment(const RobotModel& robot, const Config& config, Tables* ta
 Status PerturbExperiment(const RobotModel& robot, const Config& config, Tables* tables);    // Table III + plots
 Status ScenesExperiment(const RobotModel& robot, const Config& config, Tables* tables);     // methods x scene kinds
 Status RobustnessExperiment(const Config& config, Tables* tables);  // robots x meshers x seed families
+Status AutoExperiment(const Config& config, Tables* tables);        // seedless, whole rooms (auto.cpp)
 
 // One bench cell of `kind` (as MakeCells makes them) simulated from `seed` by `mesher`; the
 // model side is shared when given (the same robot and joints), else built.

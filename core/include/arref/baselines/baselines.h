@@ -38,6 +38,14 @@ Result<RegistrationOutput> RegisterGlobalThenIcp(GlobalAligner aligner, const Po
                                                  const PointCloud& scene_world, const Iso3& T_world_seed,
                                                  const GlobalParams& params);
 
+// The paper's proposal for automatic referencing (Sec. VI), with no seed: a box of the model's
+// bounding-box size slid over the scene in steps of SlidingBoxParams::step_fraction of its sides,
+// boxes holding too few points dropped, one SHOT descriptor (PCL SHOTEstimation) per box over
+// its points matched against the model's, then PCL ICP from the best box's centre at
+// icp_yaws yaws; the fit with the most scene points within 2 cm is kept.
+Result<RegistrationOutput> RegisterSlidingBoxShot(const PointCloud& model_base, const PointCloud& scene_world,
+                                                  const SlidingBoxParams& params, const IcpParams& icp);
+
 Result<PointCloud> MlsResample(const PointCloud& cloud, const MlsOptions& options);
 
 }  // namespace arref

@@ -89,4 +89,14 @@ inline Result<MlsOptions::Upsampling> ParseMlsUpsampling(const std::string& name
                                  "' (expected none, sample-local-plane, random-uniform-density, voxel-grid-dilation)");
 }
 
+// The paper's proposal for automatic referencing (Puljiz et al. 2019, Sec. VI): a box of the
+// robot's bounding-box size slid over the scene, SHOT descriptors of the boxes matched against
+// the model's, ICP from the best box at four yaws.
+struct SlidingBoxParams {
+  double step_fraction = 0.2;       // slide step, as a fraction of the box side (the paper's 0.2)
+  double min_points_fraction = 0.3; // boxes with fewer points than this share of the model's are dropped
+  double leaf_m = 0.03;             // both clouds voxel-downsampled first
+  int icp_yaws = 4;                 // ICP from the best box's centre, 360 / icp_yaws degrees apart
+};
+
 }  // namespace arref

@@ -32,11 +32,25 @@ struct ConfidenceThresholds {
   double min_voxels_across_robot = 20.0;
 };
 
+// The seedless method's detection (arref-auto, pipeline/seedless.h).
+struct SeedlessParams {
+  // Candidate bases refined with arref-icp (the best distinct ones of the detection).
+  std::size_t max_candidates = 8;
+  // The detection's occupancy cell, as a fraction of the robot's largest bounding-box side
+  // (never finer than the mesh's voxel).
+  double cell_fraction = 1.0 / 12.0;
+  int yaws = 12;
+  // Map samples per detection cell face (the occupancy grid is filled from them).
+  double samples_per_cell_face = 6.0;
+  std::size_t max_map_samples = 600000;
+};
+
 // One registry entry per value; the registry (methods.cpp) says which are built in.
 enum class Method {
   kPclIcp, kPclIcpPlane, kPclGicp, kSuper4pcs, kPcl4pcs, kPclK4pcs, kFpfhRansac, kArrefIcp, kArrefIcpFast, kArrefIcpExact,
   kArrefIcpPoint,
   kOpen3dIcp, kOpen3dIcpPlane,
+  kArrefAuto, kSlidingBoxShot,  // seedless: the whole map (pipeline/seedless.h)
 };
 
 // Everything a request may tune: the pipeline's stages, then each method family's parameters.
@@ -53,6 +67,8 @@ struct RegistrationOptions {
   Pcl4pcsParams pcl_4pcs;           // pcl-4pcs and pcl-k4pcs
   FpfhRansacParams fpfh_ransac;
   ArrefIcpParams arref_icp;
+  SeedlessParams seedless;          // arref-auto
+  SlidingBoxParams sliding_box;     // sliding-box-shot
   ConfidenceThresholds confidence;
   double inlier_threshold_m = 0.02;
   std::uint64_t sample_seed = 1;      // sampling is deterministic for a seed
@@ -90,6 +106,8 @@ struct MethodInfo {
   // ConfidenceThresholds were calibrated on this method's fits (docs/engine.md); no other
   // method's result is ever OK.
   bool status_calibrated = false;
+  // Searches the whole map and takes no seed (RegisterWholeMap); `run` then refuses a seeded request.
+  bool seedless = false;
 };
 const std::vector<MethodInfo>& Methods();
 // The entry of a method, or null when it is not built in (the baselines need ARREF_WITH_PCL).

@@ -1,0 +1,286 @@
+// `arref bench --only auto`: seedless referencing on whole simulated rooms (sim/room_simulator.h)
+// for every robot, both meshers, rooms with 0, 1 and 2 arms of the requested model (every other
+// room also holds an arm of another model), for the product's method, the paper's sliding box and
+// the global methods run over the whole map. Writes auto.md and auto_runs.csv into --out.
+#include <fmt/format.h>
+#include <fmt/ranges.h>
+#include <spdlog/spdlog.h>
+#include <tbb/global_control.h>
+#include <tbb/parallel_for.h>
+
+#include <algorithm>
+#include <atomic>
+#include <cmath>
+#include <fstream>
+#include <map>
+
+#include "arref/base/builtin.h"
+#include "arref/fusion/model_reconstruction.h"
+#include "arref/fusion/robot_side.h"
+#include "arref/pipeline/seedless.h"
+#include "arref/scene/metrics.h"
+#include "arref/sim/room_simulator.h"
+#include "bench.h"
+
+namespace arref::bench {
+namespace {
+
+std::uint64_t Mix(std::uint64_t x) {  // SplitMix64
+  x += 0x9E3779B97F4A7C15ull;
+  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
+  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
+  return x ^ (x >> 31);
+}
+
+struct AutoRun {
+  std::string robot, mesher, method, other;
+  int arms = 0, room = 0;
+  std::size_t triangles = 0;
+  bool ok = false;
+  std::string error, status;
+  double primary_add_m = std::nan("");  // the primary instance to the nearest requested arm
+  int instances = 0, arms_found = 0, wrong_ok = 0, candidates = 0;
+  double ms = 0;
+  std::map<std::string, double> stage_ms;
+};
+
+struct RobotEntry {
+  std::string label;
+  RobotModel model;
+};
+
+Result<std::vector<RobotEntry>> Load(const RobustnessConfig& rc, bool keep_heldout) {
+  std::vector<RobotEntry> out;
+  for (const auto& urdf : rc.robots) {
+    std::string path = urdf;
+    if (path == "builtin") {
+      ARREF_ASSIGN_OR_RETURN(path, BuiltinRobotUrdf());
+    }
+    RobotLoadOptions load;
+    load.package_path = rc.package_path;
+    auto model = RobotModel::Load(path, load);
+    if (!model.ok()) return model.status().WithContext("--robots " + urdf);
+    const std::string name = model->name();
+    if (std::any_of(out.begin(), out.end(), [&](const RobotEntry& r) { return r.label == name; })) continue;
+    const bool heldout = !rc.heldout_robot.empty() &&
+                         (name.find(rc.heldout_robot) != std::string::npos || urdf.find(rc.heldout_robot) != std::string::npos);
+    if (heldout && !keep_heldout) continue;
+    out.push_back({name, std::move(*model)});
+  }
+  if (out.empty()) return Status::InvalidArgument("auto: no robot left to measure (--robots, --heldout-robot)");
+  return out;
+}
+
+// One room, every method: simulate, build the robot side once (untimed, as the server caches it),
+// then each method over the whole map against the room's ground truth.
+std::vector<AutoRun> RunRoom(const RobotEntry& robot, const RobotEntry* other, sim::Mesher mesher, int arms, int index,
+                             std::uint64_t seed, const std::vector<std::string>& methods) {
+  AutoRun label;
+  label.robot = robot.label, label.mesher = sim::MesherName(mesher), label.arms = arms, label.room = index;
+  label.other = other ? other->label : "";
+  std::vector<AutoRun> runs;
+  auto fail_all = [&](const Status& st) {
+    for (const auto& m : methods) {
+      AutoRun r = label;
+      r.method = m, r.error = st.ToString();
+      runs.push_back(r);
+    }
+    return runs;
+  };
+  sim::RoomOptions options;
+  options.arms = arms, options.other_arm = other != nullptr, options.mesher = mesher;
+  auto room = sim::SimulateRoom({&robot.model, other ? &other->model : nullptr}, options, seed);
+  if (!room.ok()) return fail_all(room.status());
+  SpatialMesh map;
+  for (auto& s : room->surfaces)
+    if (auto st = map.Upsert(s); !st.ok()) return fail_all(st);
+  const TriangleMesh scene = map.MergedWorld();
+  label.triangles = scene.triangles.size();
+  std::vector<const sim::RoomArm*> requested;
+  for (const auto& a : room->arms)
+    if (a.requested) requested.push_back(&a);
+  const RegistrationOptions defaults;
+  auto side = RobotSide::Create(robot.model, requested.empty() ? JointValues{} : requested.front()->joints,
+                                defaults.model_samples, defaults.sample_seed);
+  if (!side.ok()) return fail_all(side.status());
+  if (auto warm = (*side)->Expected(MedianEdgeLength(scene)); !warm.ok()) return fail_all(warm.status());
+  const std::vector<Vec3f>& points = (*side)->samples().points;
+  auto add_to = [&](const Iso3& T, const sim::RoomArm& a) { return ComparePoses(T, a.T_world_base, points).add_m; };
+  for (const auto& method : methods) {
+    AutoRun r = label;
+    r.method = method;
+    RegistrationOptions o;
+    o.method = *ParseMethod(method);  // checked by the command
+    auto report = RegisterWholeMap(**side, scene, o);
+    if (!report.ok()) {
+      r.error = report.status().ToString();
+      runs.push_back(r);
+      continue;
+    }
+    r.ok = true;
+    r.status = ResultStatusName(report->status);
+    r.instances = static_cast<int>(report->instances.size());
+    r.candidates = report->candidates;
+    r.ms = report->total_ms();
+    for (const auto& t : report->timings) r.stage_ms[t.stage] += t.ms;
+    for (const auto& f : report->instances) {
+      double nearest = std::numeric_limits<double>::infinity();
+      for (const auto* a : requested) nearest = std::min(nearest, add_to(f.report.T_world_base, *a));
+      r.wrong_ok += f.report.status == ResultStatus::kOk && nearest > kWrongAddM;
+    }
+    if (report->primary >= 0 && !requested.empty()) {
+      double nearest = std::numeric_limits<double>::infinity();
+      for (const auto* a : requested)
+        nearest = std::min(nearest, add_to(report->instances[static_cast<std::size_t>(report->primary)].report.T_world_base, *a));
+      r.primary_add_m = nearest;
+    }
+    for (const auto* a : requested)
+      r.arms_found += std::any_of(report->instances.begin(), report->instances.end(),
+                                  [&](const FoundInstance& f) { return add_to(f.report.T_world_base, *a) <= kSuccessAddM; });
+    runs.push_back(r);
+  }
+  spdlog::info("bench: auto: {} {} room {} ({} arms{}, {} triangles) done", robot.label, label.mesher, index, arms,
+               other ? ", with a " + other->label : "", label.triangles);
+  return runs;
+}
+
+double Quantile(std::vector<double> v, double q) {
+  if (v.empty()) return std::nan("");
+  std::sort(v.begin(), v.end());
+  return v[static_cast<std::size_t>(std::lround(q * static_cast<double>(v.size() - 1)))];
+}
+
+std::string Pct(std::size_t n, std::size_t of) { return of == 0 ? "-" : fmt::format("{:.0f} % ({}/{})", 100.0 * n / of, n, of); }
+
+void Row(std::ostream& md, const std::string& method, const std::string& robot, const std::string& mesher,
+         const std::vector<const AutoRun*>& rs) {
+  std::size_t with_arm = 0, success = 0, empty = 0, empty_failed = 0, two = 0, both = 0, wrong = 0, errors = 0;
+  std::vector<double> ms, found;
+  for (const AutoRun* r : rs) {
+    if (!r->ok) {
+      ++errors;
+      with_arm += r->arms > 0, empty += r->arms == 0, two += r->arms == 2;
+      continue;
+    }
+    wrong += r->wrong_ok > 0;
+    ms.push_back(r->ms);
+    found.push_back(r->instances);
+    if (r->arms == 0) {
+      ++empty;
+      empty_failed += r->status == "FAILED";
+    } else {
+      ++with_arm;
+      success += r->primary_add_m <= kSuccessAddM;
+    }
+    if (r->arms == 2) ++two, both += r->arms_found == 2;
+  }
+  double mean_found = 0;
+  for (double f : found) mean_found += f / static_cast<double>(std::max<std::size_t>(1, found.size()));
+  md << fmt::format("| {} | {} | {} | {} | {} | {} | {} | {} | {:.2f} | {:.0f} | {:.0f} | {} |\n", method, robot, mesher, rs.size(),
+                    Pct(success, with_arm), wrong, Pct(empty_failed, empty), Pct(both, two), mean_found, Quantile(ms, 0.5),
+                    Quantile(ms, 0.95), errors);
+}
+
+Status Write(const Config& config, const std::vector<AutoRun>& runs, const std::vector<std::string>& methods,
+             const std::vector<std::string>& robots) {
+  const std::string& dir = config.out_dir;
+  std::ofstream csv(dir + "/auto_runs.csv");
+  if (!csv) return Status::IoError("cannot write " + dir + "/auto_runs.csv");
+  csv << "method,robot,mesher,arms,other,room,triangles,error,status,primary_add_mm,instances,arms_found,wrong_ok,candidates,ms,stages\n";
+  for (const AutoRun& r : runs) {
+    std::string stages;
+    for (const auto& [s, ms] : r.stage_ms) stages += fmt::format("{}={:.1f};", s, ms);
+    csv << fmt::format("{},{},{},{},{},{},{},\"{}\",{},{:.2f},{},{},{},{},{:.1f},{}\n", r.method, r.robot, r.mesher, r.arms, r.other,
+                       r.room, r.triangles, r.error, r.status, r.primary_add_m * 1e3, r.instances, r.arms_found, r.wrong_ok,
+                       r.candidates, r.ms, stages);
+  }
+  std::ofstream md(dir + "/auto.md");
+  if (!md) return Status::IoError("cannot write " + dir + "/auto.md");
+  md << "# arref bench --only auto (" << config.robustness.split << " split)\n\n";
+  md << "success: rooms with the arm whose primary instance is within ADD 10 mm of a requested arm; wrong OK: rooms "
+        "with an instance said OK more than 20 mm from every requested arm; empty FAILED: rooms without the arm "
+        "whose result is FAILED; both found: 2-arm rooms with both arms within 10 mm of an instance; ms: the whole "
+        "request (robot side cached), median and p95.\n\n";
+  md << "| method | robot | mesher | rooms | success | wrong OK | empty FAILED | both found | instances (mean) | ms median | "
+        "ms p95 | errors |\n|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+  auto select = [&](const std::string& m, const std::string& robot, const std::string& mesher) {
+    std::vector<const AutoRun*> out;
+    for (const AutoRun& r : runs)
+      if (r.method == m && (robot == "all" || r.robot == robot) && (mesher == "all" || r.mesher == mesher)) out.push_back(&r);
+    return out;
+  };
+  for (const auto& m : methods) {
+    for (const auto& robot : robots)
+      for (const auto& mesher : config.robustness.meshers) Row(md, m, robot, mesher, select(m, robot, mesher));
+    for (const auto& mesher : config.robustness.meshers) Row(md, m, "all", mesher, select(m, "all", mesher));
+    Row(md, m, "all", "all", select(m, "all", "all"));
+  }
+  md << "\n## Where arref-auto's time goes (median ms per stage)\n\n| stage | median ms | p95 ms |\n|---|---|---|\n";
+  std::map<std::string, std::vector<double>> per_stage;
+  std::vector<double> tris;
+  for (const AutoRun& r : runs)
+    if (r.ok && r.method == "arref-auto") {
+      for (const auto& [s, ms] : r.stage_ms) per_stage[s].push_back(ms);
+      tris.push_back(static_cast<double>(r.triangles));
+    }
+  for (const auto& [s, v] : per_stage) md << fmt::format("| {} | {:.1f} | {:.1f} |\n", s, Quantile(v, 0.5), Quantile(v, 0.95));
+  md << fmt::format("\nMap triangles: median {:.0f}, min {:.0f}, max {:.0f}.\n", Quantile(tris, 0.5), Quantile(tris, 0), Quantile(tris, 1));
+  return md ? Status::Ok() : Status::IoError("error writing " + dir + "/auto.md");
+}
+
+}  // namespace
+
+Status AutoExperiment(const Config& config, Tables* tables) {
+  const RobustnessConfig& rc = config.robustness;
+  const bool heldout = rc.split == "heldout";
+  ARREF_ASSIGN_OR_RETURN(const std::vector<RobotEntry> robots, Load(rc, heldout));
+  std::vector<sim::Mesher> meshers;
+  for (const auto& name : rc.meshers) {
+    ARREF_ASSIGN_OR_RETURN(const sim::Mesher m, sim::ParseMesher(name));
+    if (!sim::MesherAvailable(m)) return Status::FailedPrecondition("auto: mesher " + name + " is not built in (Open3D missing)");
+    meshers.push_back(m);
+  }
+  for (const auto& m : config.auto_methods)
+    if (auto parsed = ParseMethod(m); !parsed.ok()) return parsed.status().WithContext("--auto-methods");
+  // The held-back split draws its rooms from a stream of its own.
+  const std::uint64_t stream = heldout ? Mix(config.rng_seed ^ 0x4155544Fu ^ 0x48454C44u) : Mix(config.rng_seed ^ 0x4155544Fu);
+  struct Task {
+    std::size_t robot;
+    sim::Mesher mesher;
+    int arms, index;
+    std::uint64_t seed;
+  };
+  std::vector<Task> tasks;
+  const int per = config.quick ? 1 : config.auto_rooms;
+  for (std::size_t r = 0; r < robots.size(); ++r)
+    for (int arms = 0; arms <= 2; ++arms)
+      for (int i = 0; i < per; ++i) {
+        const std::uint64_t seed = Mix(stream ^ Mix(std::hash<std::string>{}(robots[r].label)) ^ Mix(static_cast<std::uint64_t>(arms * 1000 + i + 1)));
+        for (sim::Mesher m : meshers) tasks.push_back({r, m, arms, i, seed});  // the same room layout for both meshers
+      }
+  spdlog::info("bench: auto ({} split): {} robots, {} rooms, methods {}", rc.split, robots.size(), tasks.size(),
+               fmt::join(config.auto_methods, ", "));
+  std::vector<std::vector<AutoRun>> results(tasks.size());
+  auto one = [&](std::size_t t) {
+    const Task& k = tasks[t];
+    // Every other room holds an arm of the next robot too, when there is another.
+    const RobotEntry* other = robots.size() > 1 && k.index % 2 == 1 ? &robots[(k.robot + 1) % robots.size()] : nullptr;
+    results[t] = RunRoom(robots[k.robot], other, k.mesher, k.arms, k.index, k.seed, config.auto_methods);
+  };
+  if (config.jobs <= 1) {
+    for (std::size_t t = 0; t < tasks.size(); ++t) one(t);
+  } else {
+    tbb::global_control limit(tbb::global_control::max_allowed_parallelism, static_cast<std::size_t>(config.jobs));
+    tbb::parallel_for(std::size_t{0}, tasks.size(), one);
+  }
+  std::vector<AutoRun> runs;
+  for (auto& r : results) runs.insert(runs.end(), r.begin(), r.end());
+  std::vector<std::string> labels;
+  for (const auto& r : robots) labels.push_back(r.label);
+  ARREF_RETURN_IF_ERROR(Write(config, runs, config.auto_methods, labels));
+  tables->notes.push_back(fmt::format("auto: {} split, {} rooms, {} room(s) per robot and arm count and mesher; tables in auto.md",
+                                      rc.split, tasks.size(), per));
+  return Status::Ok();
+}
+
+}  // namespace arref::bench

@@ -1,0 +1,90 @@
+// Simulated rooms: the arms are where their ground truth says (the mapped mesh lies on them),
+// the requested count of each, reproducible from the seed, and bad options are refused.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+#include <vector>
+
+#include "arref/robot/robot_model.h"
+#include "arref/scene/nearest_neighbor.h"
+#include "arref/scene/sampling.h"
+#include "arref/sim/room_simulator.h"
+#include "test_support.h"
+
+namespace arref::sim {
+namespace {
+
+const RobotModel& BuiltinRobot() {
+  static const RobotModel robot = [] {
+    auto r = RobotModel::Load(testing::BuiltinRobotUrdf());
+    if (!r.ok()) throw std::runtime_error(r.status().ToString());
+    return std::move(r).value();
+  }();
+  return robot;
+}
+
+TriangleMesh Merged(const SimulatedRoom& room) {
+  SpatialMesh map;
+  for (const Surface& s : room.surfaces) EXPECT_TRUE(map.Upsert(s).ok());
+  return map.MergedWorld();
+}
+
+// Share of the arm's surface samples (posed at its ground truth) within `within_m` of the mapped mesh.
+double ShareOnMesh(const RobotModel& robot, const RoomArm& arm, const PointIndex& mesh_points, double within_m) {
+  auto posed = robot.PosedMesh(arm.joints);
+  EXPECT_TRUE(posed.ok());
+  PointCloud samples = SampleSurface(*posed, 2000, 3);
+  samples.Transform(arm.T_world_base);
+  std::size_t near = 0;
+  for (const Vec3f& p : samples.points) near += mesh_points.AnyWithin(p, static_cast<float>(within_m * within_m));
+  return static_cast<double>(near) / static_cast<double>(samples.size());
+}
+
+TEST(RoomSimulator, TwoArmsLieOnTheMappedMeshWhereTheTruthSays) {
+  RoomOptions options;
+  options.arms = 2;
+  options.max_side_m = 7.0;
+  ASSERT_OK_AND_ASSIGN(const SimulatedRoom room, SimulateRoom({&BuiltinRobot(), nullptr}, options, 5));
+  ASSERT_EQ(room.arms.size(), 2u);
+  const TriangleMesh mesh = Merged(room);
+  EXPECT_GT(mesh.triangles.size(), 20000u);
+  const PointIndex index(SampleSurface(mesh, 400000, 1).points);
+  for (const RoomArm& arm : room.arms) {
+    EXPECT_TRUE(arm.requested);
+    EXPECT_TRUE(arm.placement == "wall" || arm.placement == "table" || arm.placement == "open") << arm.placement;
+    // A walker maps about half of an arm (the rest faces away or down); a wrong truth puts none of it on the mesh.
+    EXPECT_GT(ShareOnMesh(BuiltinRobot(), arm, index, 2.5 * room.voxel_m), 0.35);
+    // The base stands on the floor or its pedestal: height above the floor as drawn.
+    const double floor_z = room.T_world_room.translation().z();
+    EXPECT_NEAR(arm.T_world_base.translation().z() - floor_z, arm.pedestal_m, 1e-9);
+  }
+  EXPECT_GT((room.arms[0].T_world_base.translation() - room.arms[1].T_world_base.translation()).norm(), 0.3);
+}
+
+TEST(RoomSimulator, SameSeedSameRoomAndNoArmWhenNoneIsAsked) {
+  RoomOptions options;
+  options.arms = 0;
+  options.max_side_m = 5.0;
+  ASSERT_OK_AND_ASSIGN(const SimulatedRoom a, SimulateRoom({&BuiltinRobot(), nullptr}, options, 9));
+  ASSERT_OK_AND_ASSIGN(const SimulatedRoom b, SimulateRoom({&BuiltinRobot(), nullptr}, options, 9));
+  EXPECT_TRUE(a.arms.empty());
+  EXPECT_EQ(a.triangles, b.triangles);
+  EXPECT_TRUE(a.T_world_room.isApprox(b.T_world_room));
+  EXPECT_TRUE(std::none_of(a.props.begin(), a.props.end(), [](const Prop& p) { return p.kind == "robot"; }));
+}
+
+TEST(RoomSimulator, RefusesBadOptions) {
+  RoomOptions options;
+  options.arms = 3;
+  EXPECT_EQ(SimulateRoom({&BuiltinRobot(), nullptr}, options, 1).status().code(), StatusCode::kInvalidArgument);
+  options.arms = 1;
+  options.other_arm = true;  // no other model given
+  EXPECT_EQ(SimulateRoom({&BuiltinRobot(), nullptr}, options, 1).status().code(), StatusCode::kInvalidArgument);
+  options.other_arm = false;
+  options.max_side_m = 30;
+  const auto st = SimulateRoom({&BuiltinRobot(), nullptr}, options, 1).status();
+  EXPECT_NE(st.ToString().find("room sides"), std::string::npos) << st.ToString();
+}
+
+}  // namespace
+}  // namespace arref::sim

@@ -1,0 +1,120 @@
+// Seedless referencing (arref-auto) on simulated rooms with ground truth: both arms of a two-arm
+// room found and ranked, the hint picks the primary, a room without the robot is FAILED.
+#include <gtest/gtest.h>
+
+#include <algorithm>
+
+#include "arref/fusion/robot_side.h"
+#include "arref/pipeline/seedless.h"
+#include "arref/robot/robot_model.h"
+#include "arref/scene/metrics.h"
+#include "arref/sim/room_simulator.h"
+#include "test_support.h"
+
+namespace arref {
+namespace {
+
+const RobotModel& BuiltinRobot() {
+  static const RobotModel robot = [] {
+    auto r = RobotModel::Load(testing::BuiltinRobotUrdf());
+    if (!r.ok()) throw std::runtime_error(r.status().ToString());
+    return std::move(r).value();
+  }();
+  return robot;
+}
+
+TriangleMesh Merged(const sim::SimulatedRoom& room) {
+  SpatialMesh map;
+  for (const Surface& s : room.surfaces) EXPECT_TRUE(map.Upsert(s).ok());
+  return map.MergedWorld();
+}
+
+struct Room {
+  sim::SimulatedRoom sim;
+  TriangleMesh map;
+  std::shared_ptr<const RobotSide> side;
+};
+
+Room MakeRoom(int arms, std::uint64_t seed) {
+  sim::RoomOptions options;
+  options.arms = arms;
+  options.max_side_m = 7.0;
+  auto sim = sim::SimulateRoom({&BuiltinRobot(), nullptr}, options, seed);
+  if (!sim.ok()) throw std::runtime_error(sim.status().ToString());
+  Room room{std::move(*sim), {}, {}};
+  room.map = Merged(room.sim);
+  const JointValues joints = room.sim.arms.empty() ? JointValues{} : room.sim.arms.front().joints;
+  auto side = RobotSide::Create(BuiltinRobot(), joints, 10000, 1);
+  if (!side.ok()) throw std::runtime_error(side.status().ToString());
+  room.side = *side;
+  return room;
+}
+
+double Add(const Room& room, const Iso3& T, const sim::RoomArm& arm) {
+  return ComparePoses(T, arm.T_world_base, room.side->samples().points).add_m;
+}
+
+TEST(Seedless, FindsBothArmsOfATwoArmRoomAndTheHintPicksThePrimary) {
+  const Room room = MakeRoom(2, 3);
+  ASSERT_EQ(room.sim.arms.size(), 2u);
+  RegistrationOptions options;
+  options.method = Method::kArrefAuto;
+  int progress_calls = 0;
+  ASSERT_OK_AND_ASSIGN(const WholeMapReport report,
+                       RegisterWholeMap(*room.side, room.map, options, {}, [&](std::string_view, double) { ++progress_calls; }));
+  EXPECT_GT(progress_calls, 3);
+  EXPECT_GE(report.candidates, 2);
+  ASSERT_GE(report.instances.size(), 2u);
+  for (const sim::RoomArm& arm : room.sim.arms) {
+    double best = 1e9;
+    for (const FoundInstance& f : report.instances) best = std::min(best, Add(room, f.report.T_world_base, arm));
+    EXPECT_LT(best, 0.02) << "an arm at " << arm.T_world_base.translation().transpose() << " was not found";
+  }
+  // The hint: the wearer stands by the second arm.
+  InstanceHint hint;
+  hint.wearer_position_world = room.sim.arms[1].T_world_base.translation() + Vec3(0.5, 0, 1.0);
+  ASSERT_OK_AND_ASSIGN(const WholeMapReport hinted, RegisterWholeMap(*room.side, room.map, options, hint));
+  ASSERT_GE(hinted.primary, 0);
+  const Iso3& primary = hinted.instances[static_cast<std::size_t>(hinted.primary)].report.T_world_base;
+  EXPECT_LT(Add(room, primary, room.sim.arms[1]), 0.02);
+}
+
+TEST(Seedless, ARoomWithoutTheRobotIsFailedWithNoInstanceOk) {
+  const Room room = MakeRoom(0, 4);
+  RegistrationOptions options;
+  options.method = Method::kArrefAuto;
+  ASSERT_OK_AND_ASSIGN(const WholeMapReport report, RegisterWholeMap(*room.side, room.map, options));
+  EXPECT_GT(report.candidates, 0);
+  EXPECT_NE(report.status, ResultStatus::kOk);
+  EXPECT_TRUE(std::none_of(report.instances.begin(), report.instances.end(),
+                           [](const FoundInstance& f) { return f.report.status == ResultStatus::kOk; }));
+}
+
+TEST(Seedless, ArrefAutoRefusesASeededRequestAndAnEmptyMap) {
+  const Room room = MakeRoom(1, 6);
+  RegistrationOptions options;
+  options.method = Method::kArrefAuto;
+  const auto seeded = RegisterScene(*room.side, room.map, room.sim.arms[0].T_world_base, options);
+  EXPECT_EQ(seeded.status().code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(seeded.status().ToString().find("no seed"), std::string::npos) << seeded.status().ToString();
+  EXPECT_EQ(RegisterWholeMap(*room.side, TriangleMesh{}, options).status().code(), StatusCode::kFailedPrecondition);
+}
+
+#ifdef ARREF_WITH_PCL
+// The paper's proposal as a baseline: one candidate at most, and never OK (it compares no
+// alternative poses, so a nearby wrong fit cannot be ruled out).
+TEST(Seedless, SlidingBoxBaselineGivesAtMostOneCandidateNeverOk) {
+  const Room room = MakeRoom(1, 6);
+  RegistrationOptions options;
+  options.method = Method::kSlidingBoxShot;
+  ASSERT_OK_AND_ASSIGN(const WholeMapReport report, RegisterWholeMap(*room.side, room.map, options));
+  EXPECT_EQ(report.method, "sliding-box-shot");
+  EXPECT_LE(report.instances.size(), 1u);
+  EXPECT_NE(report.status, ResultStatus::kOk);
+  EXPECT_TRUE(std::any_of(report.stages_run.begin(), report.stages_run.end(),
+                          [](const std::string& s) { return s.rfind("boxes-", 0) == 0; }));
+}
+#endif
+
+}  // namespace
+}  // namespace arref

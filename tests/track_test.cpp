@@ -163,9 +163,9 @@ StreamOutcome RunStream(std::shared_ptr<const RobotModel> robot, sim::TrackSimOp
     if (!f.ok()) break;
     EXPECT_TRUE(clock.Add(simulator->RoundTrip(f->true_time_s)).ok());
     for (const auto& s : simulator->JointSamples(last, f->true_time_s))
-      EXPECT_TRUE(history.Add(s.sender_time_s + clock.offset_s(), s.joints).ok());
+      EXPECT_TRUE(history.Add(s.sender_time_s, s.joints).ok());
     last = f->true_time_s;
-    auto joints = history.At(f->frame.time_s);
+    auto joints = history.At(f->frame.time_s - clock.offset_s());
     if (!joints.ok()) continue;
     auto r = tracker->Process(f->frame, joints->joints);
     EXPECT_TRUE(r.ok()) << r.status().ToString();

@@ -44,6 +44,7 @@ struct BenchArgs {
   std::string heldout_robot = "sia10d";
   int robust_cells = 4;
   int robust_seeds = 2;
+  bench::TrackConfig track;
   std::string command_line;
 };
 
@@ -86,6 +87,7 @@ int Run(const BenchArgs& args) {
   rc.split = args.split, rc.heldout_robot = args.heldout_robot, rc.cells = args.robust_cells, rc.seeds = args.robust_seeds;
   rc.package_path = args.robot.package_path;
   rc.robots = args.robots;
+  config.track = args.track;
   if (rc.robots.empty()) {
     // The built-in robot, and every vendor package beside the checkout (when it is there).
     rc.robots.push_back("builtin");
@@ -121,6 +123,9 @@ int Run(const BenchArgs& args) {
   // Only when asked for: it simulates cells of every robot with both meshers (minutes).
   if (args.only.find("robustness") != std::string::npos)
     if (auto st = bench::RobustnessExperiment(config, &tables); !st.ok()) return Fail(st.WithContext("robustness"));
+  // Only when asked for: minutes of simulated streams per robot.
+  if (args.only.find("track") != std::string::npos)
+    if (auto st = bench::TrackExperiment(config, &tables); !st.ok()) return Fail(st.WithContext("track"));
   const double minutes = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() / 60;
   tables.notes.push_back(fmt::format("{} runs in {:.1f} min with {} parallel job(s)", tables.runs.size(), minutes, config.jobs));
   if (config.quick) tables.notes.push_back("--quick: a subset (small configuration only, fewer cells, seeds and parameter sets)");
@@ -175,8 +180,8 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
                   "--pose-jitter (default 0.004, 0.3 deg; 0: equal weights in its last polish)")
       ->check(CLI::Range(0.0, 0.1));
   cmd->add_option("--only", args->only,
-                  "Run only these experiments: sweep, perturb, scenes, robustness (comma-separated; robustness runs "
-                  "only when named)");
+                  "Run only these experiments: sweep, perturb, scenes, robustness, track (comma-separated; robustness "
+                  "and track run only when named)");
   cmd->add_option("--robots", args->robots,
                   "Robustness: robot URDFs, comma-separated, 'builtin' for the built-in robot (default: builtin and "
                   "every URDF under ../shared/robots/*/urdf/, which is also the default --package-path)")
@@ -196,6 +201,18 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
       ->check(CLI::Range(1, 1000))->capture_default_str();
   cmd->add_option("--robust-seeds", args->robust_seeds, "Robustness: seeds per family and cell (--quick: 1)")
       ->check(CLI::Range(1, 1000))->capture_default_str();
+  cmd->add_option("--track-kinds", args->track.kinds, "Track: frame kinds (long-throw, ahat)")
+      ->delimiter(',')->check(CLI::IsMember({"long-throw", "ahat"}));
+  cmd->add_option("--track-streams", args->track.streams, "Track: streams per robot and frame kind")
+      ->check(CLI::Range(1, 100))->capture_default_str();
+  cmd->add_option("--track-seconds", args->track.seconds, "Track: seconds per stream")->check(CLI::Range(2.0, 3600.0))->capture_default_str();
+  cmd->add_option("--track-baseline-frames", args->track.baseline_frames,
+                  "Track: frames per long-throw stream also registered the one-shot way (PCL ICP), 0: none")
+      ->check(CLI::Range(0, 1000))->capture_default_str();
+  cmd->add_option("--track-long-minutes", args->track.long_minutes, "Track: minutes of the long stream (drift, memory; 0: none)")
+      ->check(CLI::Range(0.0, 120.0))->capture_default_str();
+  cmd->add_option("--track-long-fps", args->track.long_fps, "Track: frame rate of the long stream")
+      ->check(CLI::Range(1.0, 60.0))->capture_default_str();
   cmd->callback([args, exit_code, cmd] {
     args->command_line = "arref bench";
     for (const auto& o : cmd->get_options())

@@ -209,7 +209,12 @@ Result<SimFrame> TrackSimulator::Next() {
       f.depth_mm[p] = static_cast<std::uint16_t>(std::clamp(std::round(1000 * z), 0.0, 65535.0));
     }
   const Iso3 T_world_cell = I.drift * I.T_world0_cell;
-  f.T_world_camera = T_world_cell * T_cell_cam;
+  std::normal_distribution<double> jm(0.0, I.o.pose_jitter_m), jr(0.0, I.o.pose_jitter_deg * kDeg);
+  const Vec3 axis_angle(jr(I.noise_rng), jr(I.noise_rng), jr(I.noise_rng));
+  Iso3 jitter = Iso3::Identity();
+  if (axis_angle.norm() > 0) jitter.linear() = Eigen::AngleAxisd(axis_angle.norm(), axis_angle.normalized()).toRotationMatrix();
+  jitter.translation() = Vec3(jm(I.noise_rng), jm(I.noise_rng), jm(I.noise_rng));
+  f.T_world_camera = T_world_cell * T_cell_cam * jitter;
   out.T_world_base_true = T_world_cell * I.cell.T_cell_base;
   return out;
 }
@@ -224,7 +229,9 @@ std::vector<SimJointSample> TrackSimulator::JointSamples(double t0_s, double t1_
     // The stamp's jitter is a function of the sample alone, so any split of the stream agrees.
     std::seed_seq seq{I.seed, static_cast<std::uint64_t>(kStamps), static_cast<std::uint64_t>(k)};
     std::mt19937_64 rng(seq);
-    const double jitter = I.o.joint_stamp_jitter_s * std::normal_distribution<double>(0.0, 1.0)(rng);
+    // Within 0.4 of the spacing: a controller's stamps jitter but never run backwards.
+    const double jitter = std::clamp(I.o.joint_stamp_jitter_s * std::normal_distribution<double>(0.0, 1.0)(rng),
+                                     -0.4 / rate, 0.4 / rate);
     // The joints are those of the stamped instant: the stamp errs, not the robot.
     out.push_back({t + jitter + I.o.sender_clock_offset_s, I.Joints(t)});
   }

@@ -43,6 +43,16 @@ struct RobustnessConfig {
   int seeds = 2;  // per seed family and cell
 };
 
+// The tracking experiment (issue 28): robots as RobustnessConfig's, with its split.
+struct TrackConfig {
+  std::vector<std::string> kinds = {"long-throw", "ahat"};
+  int streams = 2;            // per robot and frame kind
+  double seconds = 20.0;      // per stream
+  int baseline_frames = 8;    // per long-throw stream, the one-shot baseline
+  double long_minutes = 10.0; // the long stream (0: none)
+  double long_fps = 5.0;      // at the long-throw camera's real rate, to keep it affordable
+};
+
 struct Config {
   std::vector<std::string> methods;          // swept (Tables I, II)
   std::vector<std::string> perturb_methods;  // Table III
@@ -63,6 +73,7 @@ struct Config {
   // 75 degrees per metre as sim::SetPoseJitter; 0: equal weights. Default: the method's own.
   double tracking_error_m = -1;
   RobustnessConfig robustness;
+  TrackConfig track;
 };
 
 // A simulated cell with everything a run needs.
@@ -134,6 +145,7 @@ Status SweepExperiment(const RobotModel& robot, const Config& config, Tables* ta
 Status PerturbExperiment(const RobotModel& robot, const Config& config, Tables* tables);    // Table III + plots
 Status ScenesExperiment(const RobotModel& robot, const Config& config, Tables* tables);     // methods x scene kinds
 Status RobustnessExperiment(const Config& config, Tables* tables);  // robots x meshers x seed families
+Status TrackExperiment(const Config& config, Tables* tables);       // robots x frame kinds, to track.md
 
 // One bench cell of `kind` (as MakeCells makes them) simulated from `seed` by `mesher`; the
 // model side is shared when given (the same robot and joints), else built.

@@ -49,6 +49,10 @@ struct TrackSimOptions {
   double depth_noise_fraction = 0.0;  // sigma as a fraction of depth; 0: 1 % long-throw, 0.3 % AHAT
   double depth_noise_floor_m = 0.0;   // added sigma; 0: none long-throw, 2 mm AHAT
   double dropout = 0.02;              // pixels with no return
+  // Per-frame error of the camera pose the headset reports (not part of the truth: the
+  // headset's world is where its tracking puts it on average), as the mapping simulator's.
+  double pose_jitter_m = 0.004;
+  double pose_jitter_deg = 0.3;
   // Head-tracking drift of the headset's world (random walk per sqrt(s)) and one jump.
   double drift_m_per_sqrt_s = 0.0015;
   double drift_deg_per_sqrt_s = 0.03;

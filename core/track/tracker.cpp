@@ -52,6 +52,7 @@ struct Measurement {
   Iso3 T_world_base = Iso3::Identity();
   Mat4 covariance = Mat4::Identity();
   double agreement = 0.0;
+  double coverage = 0.0;  // agreeing pixels of all visible model pixels with a depth
   std::size_t model_points = 0, depth_points = 0;
 };
 
@@ -74,7 +75,9 @@ struct Tracker::Impl {
   // The last frame that fit: where its camera was and where the filter put the base.
   std::optional<Iso3> last_T_world_camera;
   std::optional<Iso3> last_T_world_base;
+  std::optional<std::pair<double, Iso3>> previous_camera;  // the last frame's time and camera pose
   int lost_frames = 0;
+  bool CameraJumped(const DepthFrame& f) const;
 
   int StrideFor(const DepthIntrinsics& c) const {
     return settings.stride > 0 ? settings.stride : std::max(1, (c.width + 159) / 160);
@@ -83,10 +86,23 @@ struct Tracker::Impl {
   Measurement Measure(const DepthFrame& f, const Iso3& T0, const std::vector<double>& distances, int iterations,
                       TrackResult* out) const;
   PointCloud DepthPoints(const DepthFrame& f, const ModelView& view, const Iso3& T_world_base, const Aabb& crop) const;
-  double Agreement(const DepthFrame& f, const ModelView& view, const Iso3& T_world_base) const;
+  // Sets m->agreement and m->coverage at m->T_world_base.
+  void Agreement(const DepthFrame& f, const ModelView& view, Measurement* m) const;
+  bool Reacquires(const Measurement& m) const {
+    return m.agreement >= settings.min_reacquire_agreement && m.coverage >= settings.min_reacquire_coverage;
+  }
   Mat4 Covariance(const PointCloud& source, const TargetCloud& target, const Iso3& T_base_world) const;
   std::optional<Iso3> GridSearch(const DepthFrame& f, const std::vector<Iso3>& guesses, TrackResult* out) const;
 };
+
+// Faster than a head moves: the headset's world moved under the camera (re-localisation).
+bool Tracker::Impl::CameraJumped(const DepthFrame& f) const {
+  if (!previous_camera) return false;
+  const double dt = std::max(1e-3, f.time_s - previous_camera->first);
+  const Iso3 delta = previous_camera->second.inverse() * f.T_world_camera;
+  const double angle_deg = Eigen::AngleAxisd(delta.linear()).angle() / kDeg;
+  return delta.translation().norm() / dt > settings.camera_jump_m_per_s || angle_deg / dt > settings.camera_jump_deg_per_s;
+}
 
 Status Tracker::Impl::PoseModel(const JointValues& given) {
   JointValues clamped = given;
@@ -124,10 +140,10 @@ PointCloud Tracker::Impl::DepthPoints(const DepthFrame& f, const ModelView& view
 // The fraction of the model's visible pixels whose depth agrees with the model moved to
 // T_world_base, of those that agree or that the depth sees through (a depth nearer than the
 // model is an occluder, and says nothing).
-double Tracker::Impl::Agreement(const DepthFrame& f, const ModelView& view, const Iso3& T_world_base) const {
+void Tracker::Impl::Agreement(const DepthFrame& f, const ModelView& view, Measurement* m) const {
   const DepthIntrinsics& c = f.intrinsics;
-  const Eigen::Isometry3f T_camera_base = (f.T_world_camera.inverse() * T_world_base).cast<float>();
-  std::size_t agree = 0, through = 0;
+  const Eigen::Isometry3f T_camera_base = (f.T_world_camera.inverse() * m->T_world_base).cast<float>();
+  std::size_t agree = 0, through = 0, occluded = 0;
   for (const Vec3f& p : view.points_base.points) {
     const Vec3f q = T_camera_base * p;
     if (q.z() <= 0.05f) continue;
@@ -136,11 +152,13 @@ double Tracker::Impl::Agreement(const DepthFrame& f, const ModelView& view, cons
     if (u < 0 || v < 0 || u >= c.width || v >= c.height) continue;
     const float d = Unwrapped(f.DepthAt(u, v), q.z(), f.wrap_m);
     if (d <= 0) continue;
-    const float tol = static_cast<float>(settings.agree_m + 0.02 * q.z());
+    const float tol = static_cast<float>(settings.agree_m + settings.agree_range_fraction * q.z());
     if (std::abs(d - q.z()) < tol) ++agree;
     else if (d > q.z()) ++through;
+    else ++occluded;
   }
-  return agree + through ? static_cast<double>(agree) / static_cast<double>(agree + through) : 0.0;
+  m->agreement = agree + through ? static_cast<double>(agree) / static_cast<double>(agree + through) : 0.0;
+  m->coverage = agree ? static_cast<double>(agree) / static_cast<double>(agree + through + occluded) : 0.0;
 }
 
 // ICP's 4-DoF covariance at the fit, mapped from its perturbation of T_base_world to the
@@ -198,7 +216,7 @@ Measurement Tracker::Impl::Measure(const DepthFrame& f, const Iso3& T0, const st
   if (!fit.ok() || fit->correspondences < settings.min_model_points / 2) return m;
   // The base stays gravity-aligned: 4-DoF steps keep roll and pitch as the prediction had them.
   m.T_world_base = StateToPose(PoseToState(fit->T_target_source.inverse()));
-  m.agreement = Agreement(f, view, m.T_world_base);
+  Agreement(f, view, &m);
   m.covariance = Covariance(source, target, m.T_world_base.inverse());
   m.fits = m.agreement >= settings.min_agreement;
   out->icp_ms += lap.Lap();
@@ -245,7 +263,8 @@ std::optional<Iso3> Tracker::Impl::GridSearch(const DepthFrame& f, const std::ve
   double best_agreement = -1;
   for (std::size_t i = 0; i < std::min<std::size_t>(3, candidates.size()); ++i) {
     const Measurement m = Measure(f, StateToPose(PoseToState(candidates[i].T)), {0.06, 0.025}, settings.icp_iterations, out);
-    if (m.fits && m.agreement > best_agreement) best = m.T_world_base, best_agreement = m.agreement;
+    if (Reacquires(m) && m.agreement > best_agreement)
+      best = m.T_world_base, best_agreement = m.agreement;
   }
   return best;
 }
@@ -260,7 +279,7 @@ Result<Tracker> Tracker::Create(std::shared_ptr<const RobotModel> robot, Tracker
   if (settings.icp_distances_m.empty()) return Status::InvalidArgument("tracker: icp_distances_m is empty");
   ARREF_ASSIGN_OR_RETURN(ModelCaster caster, ModelCaster::Create(*robot));
   auto impl = std::make_unique<Impl>(Impl{robot, settings, std::move(caster), robot->ActuatedJoints(),
-                                          PoseFilter(settings.filter), {}, {}, {}, 0});
+                                          PoseFilter(settings.filter), {}, {}, {}, {}, 0});
   return Tracker(std::move(impl));
 }
 
@@ -278,10 +297,11 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
   ARREF_RETURN_IF_ERROR(CheckDepthFrame(frame));
   if (!seeded()) return Status::FailedPrecondition("tracker: no first guess of the robot's pose (Seed)");
   Impl& I = *impl_;
-  LapTimer total;
+  const SteadyClock::time_point start = SteadyClock::now();
+  LapTimer lap;
   TrackResult out;
   ARREF_RETURN_IF_ERROR(I.PoseModel(joints).WithContext("tracker: posing the robot"));
-  out.model_ms += total.Lap();
+  out.model_ms += lap.Lap();
   const TrackerSettings& s = I.settings;
   const std::vector<double> wide = {0.15, 0.06, 0.025};
   auto finish = [&](TrackState state) {
@@ -297,7 +317,8 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
       I.last_T_world_camera = frame.T_world_camera;
       I.lost_frames = 0;
     }
-    out.total_ms = total.Lap() + out.model_ms + out.icp_ms;
+    I.previous_camera = {frame.time_s, frame.T_world_camera};
+    out.total_ms = MsSince(start);
     return out;
   };
   auto restart = [&](const Measurement& m) {
@@ -312,10 +333,13 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
   ++out.hypotheses;
   const Measurement m = I.Measure(frame, predicted, tracking ? s.icp_distances_m : wide, s.icp_iterations, &out);
   out.model_points = m.model_points, out.depth_points = m.depth_points, out.agreement = m.agreement;
-  if (m.model_points < s.min_model_points) return finish(TrackState::kNoRobot);
+  const bool jumped = I.CameraJumped(frame);
+  // Out of view where the filter says; after a camera jump, the world may have moved it.
+  if (m.model_points < s.min_model_points && !jumped) return finish(TrackState::kNoRobot);
   if (m.fits) {
     out.T_world_base_measured = m.T_world_base;
     if (!tracking) {
+      if (!I.Reacquires(m)) return finish(TrackState::kLost);
       I.seed.reset();
       return restart(m);
     }
@@ -325,32 +349,33 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
                                                 : TrackState::kTracking);
   }
   ++I.lost_frames;
-  // Lost. If the world moved under a steady head, the robot is where the camera last saw it.
+  // Lost. If the world moved under a steady head, the robot is where the camera last saw it;
+  // when the camera has not jumped, that guess is off by the head's motion, so it waits for a
+  // second lost frame like the grid search.
+  if (!jumped && I.lost_frames <= s.lost_frames_before_search) return finish(TrackState::kLost);
   std::vector<Iso3> guesses = {predicted};
   if (I.last_T_world_base && I.last_T_world_camera) {
     const Iso3 relative =
         StateToPose(PoseToState(frame.T_world_camera * I.last_T_world_camera->inverse() * *I.last_T_world_base));
     ++out.hypotheses;
     const Measurement r = I.Measure(frame, relative, wide, s.icp_iterations, &out);
-    if (r.fits) {
-      spdlog::info("tracker: re-referenced from the camera's view, {:.3f} m from the prediction",
-                   (r.T_world_base.translation() - predicted.translation()).norm());
+    if (I.Reacquires(r)) {
+      spdlog::info("tracker: re-referenced from the camera's view, {:.3f} m from the prediction{}",
+                   (r.T_world_base.translation() - predicted.translation()).norm(), jumped ? " (the camera jumped)" : "");
       I.seed.reset();
       return restart(r);
     }
     guesses.push_back(relative);
   }
-  if (I.lost_frames > s.lost_frames_before_search) {
-    if (const auto found = I.GridSearch(frame, guesses, &out)) {
-      const Measurement refined = I.Measure(frame, *found, s.icp_distances_m, s.icp_iterations, &out);
-      if (refined.fits) {
-        spdlog::info("tracker: re-acquired by a search of {} poses", out.hypotheses);
-        I.seed.reset();
-        return restart(refined);
-      }
+  if (const auto found = I.GridSearch(frame, guesses, &out)) {
+    const Measurement refined = I.Measure(frame, *found, s.icp_distances_m, s.icp_iterations, &out);
+    if (I.Reacquires(refined)) {
+      spdlog::info("tracker: re-acquired by a search of {} poses", out.hypotheses);
+      I.seed.reset();
+      return restart(refined);
     }
-    I.lost_frames = 0;  // the next search waits again
   }
+  I.lost_frames = 0;  // the next search waits again
   return finish(TrackState::kLost);
 }
 

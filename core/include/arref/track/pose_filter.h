@@ -29,10 +29,11 @@ struct PoseFilterSettings {
   // This many rejected measurements in a row, each within the gate of the one before, are a
   // world jump: the filter restarts at the newest.
   int jump_after = 3;
-  // Floor of a measurement's covariance (sigma, m and rad): ICP's own estimate ignores model
-  // and calibration errors that do not average out.
-  double min_sigma_m = 0.002;
-  double min_sigma_rad = 0.002;
+  // Added to a measurement's covariance (sigma, m and rad): ICP's own estimate knows nothing of
+  // the error of the camera pose the headset reports with each frame (a few mm and tenths of a
+  // degree), which moves the whole frame and dominates a single measurement.
+  double min_sigma_m = 0.006;
+  double min_sigma_rad = 0.006;
 };
 
 enum class FilterVerdict { kInitialised, kAccepted, kRejected, kJump };

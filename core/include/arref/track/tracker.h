@@ -32,10 +32,19 @@ struct TrackerSettings {
   double kernel_min_m = 0.008;
   // A model pixel agrees with the depth when they differ by less than this (plus 2 % of range);
   // it disagrees when the depth lies behind the model by more (seen through the model).
-  double agree_m = 0.03;
+  double agree_m = 0.02;
+  double agree_range_fraction = 0.015;
   double min_agreement = 0.6;     // below: the fit is lost
+  // A pose found by re-acquisition must agree at least this well before the filter restarts
+  // there: a wrong basin next to the robot often agrees with two thirds of its pixels.
+  double min_reacquire_agreement = 0.85;
+  // ... and cover at least this share of the visible model pixels (the rest occluded): a model
+  // placed on the wrong object agrees only where that object happens to lie.
+  double min_reacquire_coverage = 0.5;
   std::size_t min_model_points = 60;
-  int lost_frames_before_search = 1;  // frames with a lost fit before the grid search
+  // Frames with a lost fit before re-acquisition when the camera has not jumped (one lost frame
+  // may be a hand in front of the sensor).
+  int lost_frames_before_search = 1;
   // The grid search: positions round each guess, yaws round its heading.
   double search_step_m = 0.2;
   int search_steps = 2;           // (2 steps + 1)^2 positions

@@ -60,7 +60,7 @@ struct Server::Impl {
         robots(std::move(r)),
         jobs(static_cast<std::size_t>(config.workers), config.queue_size,
              [this](Job& job) { return RunRegistrationJob(job, *robots); }),
-        ctx{config, *robots, jobs, hub, shutting_down, [this](std::uint64_t id) { OnSessionClosed(id); },
+        ctx{config, *robots, jobs, hub, tracking, shutting_down, [this](std::uint64_t id) { OnSessionClosed(id); },
             ARREF_VERSION},
         strand(net::make_strand(ioc)),
         acceptor(strand),
@@ -73,6 +73,7 @@ struct Server::Impl {
     for (auto& job : jobs.CloseQueue()) FinishCancelled(*job, "server stopping");
     jobs.CancelAllRunning();
     jobs.Join();
+    tracking.Shutdown();  // its workers send to sessions: stopped before their I/O goes
   }
 
   Status Listen();
@@ -93,6 +94,7 @@ struct Server::Impl {
   ServerConfig config;
   std::unique_ptr<RobotRegistry> robots;
   SubscriberHub hub;
+  TrackingService tracking{hub};
   std::atomic<bool> shutting_down{false};
   JobScheduler jobs;
   ServerContext ctx;

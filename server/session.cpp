@@ -4,6 +4,7 @@
 #include <spdlog/spdlog.h>
 
 #include <chrono>
+#include <cmath>
 
 #include "arref/base/clock.h"
 #include "convert.h"
@@ -134,6 +135,9 @@ void Session::Handle(const pb::ClientMessage& m) {
       case K::kCancel: OnCancel(m.cancel()); break;
       case K::kSubscribe: OnSubscribe(m.subscribe()); break;
       case K::kPing: OnPing(m.ping()); break;
+      case K::kDepthFrame: OnDepthFrame(m.depth_frame()); break;
+      case K::kTrackRequest: OnTrackRequest(m.track_request()); break;
+      case K::kClockReport: OnClockReport(m.clock_report()); break;
       case K::KIND_NOT_SET:
         SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "message has no known kind (newer client?); ignored");
         break;
@@ -241,7 +245,50 @@ void Session::OnJointState(const pb::JointState& m) {
     if (auto checked = ctx_.robots.ResolveJoints(*robot, *joints); !checked.ok())
       return SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "JointState: " + checked.status().message());
   }
+  // A timestamped state naming its robot is also a sample of that robot's joint stream.
+  if (!m.robot_id().empty() && m.timestamp_s() > 0) {
+    const ServedRobot* robot = ctx_.robots.Find(m.robot_id());
+    auto complete = ctx_.robots.ResolveJoints(*robot, *joints);
+    if (complete.ok())
+      if (auto st = ctx_.tracking.AddJoints(m.robot_id(), id_, m.timestamp_s(), *complete); !st.ok())
+        SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "JointState: " + st.message());
+  }
   joints_[m.robot_id()] = std::move(*joints);
+}
+
+void Session::OnTrackRequest(const pb::TrackRequest& m) {
+  const ServedRobot* robot = ctx_.robots.Find(m.robot_id());
+  if (!robot)
+    return SendError(pb::ERROR_CODE_UNKNOWN_ROBOT, fmt::format("TrackRequest: robot '{}' is not served here (served: {})",
+                                                               m.robot_id(), ctx_.robots.Ids()));
+  if (m.stop()) return ctx_.tracking.Stop(m.robot_id(), id_);
+  const auto result_frame = wire::FromProto(m.result_frame());
+  if (!result_frame.ok())
+    return SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "TrackRequest.result_frame: " + result_frame.status().message());
+  std::optional<Iso3> seed = seed_;
+  if (m.has_seed()) {
+    const auto frame = wire::FromProto(m.seed().frame());
+    if (!frame.ok()) return SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "TrackRequest.seed: " + frame.status().message());
+    auto T = wire::PoseFromProto(m.seed().t_world_seed(), *frame);
+    if (!T.ok()) return SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "TrackRequest.seed: " + T.status().message());
+    seed = *T;
+  }
+  if (!seed) return SendError(pb::ERROR_CODE_NO_SEED, "TrackRequest: no seed in the request and no SeedPose in the session");
+  if (auto st = ctx_.tracking.Start(*robot, m.robot_id(), shared_from_this(), *seed, *result_frame); !st.ok())
+    return SendError(wire::ErrorCodeFor(st), "TrackRequest: " + st.message());
+}
+
+void Session::OnDepthFrame(const pb::DepthFrame& m) {
+  auto frame = wire::DepthFrameFromProto(m);
+  if (!frame.ok()) return SendError(pb::ERROR_CODE_BAD_DEPTH_FRAME, fmt::format("DepthFrame {}: {}", m.frame_id(), frame.status().message()));
+  if (auto st = ctx_.tracking.SubmitFrame(m.robot_id(), id_, m.frame_id(), std::move(*frame)); !st.ok())
+    return SendError(pb::ERROR_CODE_NOT_TRACKING, st.message());
+}
+
+void Session::OnClockReport(const pb::ClockReport& m) {
+  if (!std::isfinite(m.offset_s()) || !std::isfinite(m.uncertainty_s()) || m.uncertainty_s() < 0)
+    return SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "ClockReport: offset and uncertainty must be finite, uncertainty >= 0");
+  ctx_.tracking.ReportClock(id_, {m.offset_s(), m.uncertainty_s(), true});
 }
 
 void Session::OnCancel(const pb::Cancel& m) {
@@ -277,10 +324,13 @@ void Session::OnPing(const pb::Ping& m) {
   if (m.payload().size() > kMaxPingPayload)
     return SendError(pb::ERROR_CODE_INVALID_ARGUMENT,
                      fmt::format("Ping payload of {} bytes exceeds {} bytes", m.payload().size(), kMaxPingPayload));
+  const double received = TrackingService::Now();
   pb::ServerMessage reply;
   reply.mutable_pong()->set_nonce(m.nonce());
+  reply.mutable_pong()->set_client_time_s(m.client_time_s());
+  reply.mutable_pong()->set_receive_time_s(received);
   reply.mutable_pong()->set_payload(m.payload());
-  reply.mutable_pong()->set_server_time_s(std::chrono::duration<double>(SteadyClock::now().time_since_epoch()).count());
+  reply.mutable_pong()->set_server_time_s(TrackingService::Now());
   Send(reply);
 }
 
@@ -502,6 +552,7 @@ void Session::CloseNow(const std::string& reason) {
   const auto dropped = ctx_.jobs.CancelSession(id_);  // running ones stop at their next stage
   if (!dropped.empty()) spdlog::info("session {}: {} queued requests dropped with it", id_, dropped.size());
   ctx_.hub.RemoveSession(id_);
+  ctx_.tracking.RemoveSession(id_);
   if (ctx_.on_session_closed) ctx_.on_session_closed(id_);
 }
 

@@ -27,6 +27,7 @@
 #include "robot_registry.h"
 #include "server_config.h"
 #include "subscriber_hub.h"
+#include "tracking_service.h"
 #include "wire.h"
 
 namespace arref::server {
@@ -40,6 +41,7 @@ struct ServerContext {
   RobotRegistry& robots;
   JobScheduler& jobs;
   SubscriberHub& hub;
+  TrackingService& tracking;
   std::atomic<bool>& shutting_down;
   std::function<void(std::uint64_t session_id)> on_session_closed;
   std::string server_version;
@@ -81,6 +83,9 @@ class Session : public std::enable_shared_from_this<Session> {
   void OnCancel(const wire::pb::Cancel& m);
   void OnSubscribe(const wire::pb::Subscribe& m);
   void OnPing(const wire::pb::Ping& m);
+  void OnDepthFrame(const wire::pb::DepthFrame& m);
+  void OnTrackRequest(const wire::pb::TrackRequest& m);
+  void OnClockReport(const wire::pb::ClockReport& m);
 
   // A job for the request (request_builder.h) with this session's scene and callbacks; an
   // error is sent and nullptr returned on bad input.

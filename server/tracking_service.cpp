@@ -106,6 +106,7 @@ Status TrackingService::Start(const ServedRobot& served, const std::string& robo
     t.tracker->Seed(T_world_base_seed);
   }
   t.slot.reset();
+  t.processed = t.dropped = 0;  // counts of this request's stream
   spdlog::info("tracking: robot {} for session {}", robot_id, session->id());
   return Status::Ok();
 }

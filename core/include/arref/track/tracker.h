@@ -24,6 +24,7 @@ struct TrackerSettings {
   // Traced every stride-th pixel in u and v, for the model and the depth alike; 0: chosen from
   // the image width (2 at 320, 3 at 512).
   int stride = 0;
+  std::size_t dense_below_points = 1000;  // fewer model points at that stride: every pixel
   std::size_t max_source_points = 2500;  // depth points per ICP
   double crop_margin_m = 0.08;           // around the posed model's bounds at the prediction
   double floor_clearance_m = 0.03;       // depth points this close above the base's bottom are floor

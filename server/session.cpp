@@ -17,6 +17,7 @@ namespace pb = wire::pb;
 
 constexpr std::size_t kReadChunk = 64 * 1024;
 constexpr std::size_t kMaxPingPayload = 64 * 1024;
+constexpr double kJointMotionWhileMappingRad = 0.02;  // a joint moving more smears the arm's mesh
 constexpr auto kLinger = std::chrono::seconds(2);  // time to flush a final error before closing
 
 std::chrono::milliseconds Seconds(double s) { return std::chrono::milliseconds(static_cast<long long>(s * 1000)); }
@@ -253,7 +254,22 @@ void Session::OnJointState(const pb::JointState& m) {
       if (auto st = ctx_.tracking.AddJoints(m.robot_id(), id_, m.timestamp_s(), *complete); !st.ok())
         SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "JointState: " + st.message());
   }
+  if (spatial_.size() > 0)
+    for (const auto& [name, value] : *joints) {
+      auto [it, fresh] = joint_range_[m.robot_id()].try_emplace(name, value, value);
+      if (!fresh) it->second = {std::min(it->second.first, value), std::max(it->second.second, value)};
+    }
   joints_[m.robot_id()] = std::move(*joints);
+}
+
+double Session::JointMotionWhileMapping(const std::string& robot_id) const {
+  double most = 0.0;
+  for (const std::string& id : {robot_id, std::string()}) {
+    const auto it = joint_range_.find(id);
+    if (it == joint_range_.end()) continue;
+    for (const auto& [name, range] : it->second) most = std::max(most, range.second - range.first);
+  }
+  return most;
 }
 
 void Session::OnTrackRequest(const pb::TrackRequest& m) {
@@ -398,14 +414,23 @@ void Session::AttachCallbacks(Job& job) {
     message.mutable_progress()->set_fraction(fraction);
     self->SendFrame(wire::SharedFrame(message));
   };
-  job.on_done = [weak, hub](const Job& done, const JobOutcome& outcome) {
+  const double joint_motion = JointMotionWhileMapping(job.robot_id);
+  job.on_done = [weak, hub, joint_motion](const Job& done, const JobOutcome& outcome) {
     const wire::ResultHeader header{.request_id = done.request_id,
                                     .robot_id = done.robot_id,
                                     .session_id = done.session_id,
                                     .queue_ms = outcome.queue_ms,
                                     .server_ms = MsSince(done.accepted_at)};
-    const auto frame =
-        wire::SharedFrame(wire::ResultMessage(header, outcome.report, outcome.status, done.result_frame));
+    pb::ServerMessage message = wire::ResultMessage(header, outcome.report, outcome.status, done.result_frame);
+    if (joint_motion > kJointMotionWhileMappingRad) {
+      pb::Result* r = message.mutable_result();
+      r->set_joints_moved_while_mapping(true);
+      r->set_joint_motion_rad(joint_motion);
+      r->set_message(r->message() + (r->message().empty() ? "" : "; ") +
+                     fmt::format("the joints moved by up to {:.2f} rad while the map was made: the arm's mesh is "
+                                 "smeared (TrackRequest with depth frames follows a moving robot)", joint_motion));
+    }
+    const auto frame = wire::SharedFrame(message);
     spdlog::info("session {}: request {} {} ({:.0f} ms queued, {:.0f} ms running){}", done.session_id, done.request_id,
                  outcome.report ? "done" : outcome.status.ToString(), outcome.queue_ms, outcome.run_ms,
                  weak.expired() ? "; session gone, result dropped" : "");

@@ -126,6 +126,9 @@ class Session : public std::enable_shared_from_this<Session> {
   std::optional<Iso3> seed_;
   FrameConvention seed_frame_ = FrameConvention::kUnity;
   std::map<std::string, JointValues> joints_;  // by robot id; "" applies to every robot
+  // Per robot id, each joint's lowest and highest value sent since the first surface arrived.
+  std::map<std::string, std::map<std::string, std::pair<double, double>>> joint_range_;
+  double JointMotionWhileMapping(const std::string& robot_id) const;
   std::set<std::uint64_t> in_flight_;
   bool shutdown_notified_ = false;
 };

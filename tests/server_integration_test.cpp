@@ -778,5 +778,31 @@ TEST(ServerIntegration, TrackingErrorsAreClearAndKeepTheSession) {
   EXPECT_LE(pong.pong().receive_time_s(), pong.pong().server_time_s());
 }
 
+// Joints that move while the map is made smear the arm's mesh: the one-shot result says so.
+TEST(ServerIntegration, ResultSaysWhenTheJointsMovedWhileMapping) {
+  ServerProcess server;
+  const HeadsetScene scene = Scene(1);
+  for (const double moved : {0.0, 0.3}) {
+    ScriptedHeadset h(server);
+    ASSERT_TRUE(h.Hello().has_hello_reply());
+    h.Upload(scene);
+    for (const double q : {0.1, 0.1 + moved}) {
+      pb::ClientMessage j;
+      j.mutable_joint_state()->set_robot_id("kr5");
+      j.mutable_joint_state()->add_names("joint_a1");
+      j.mutable_joint_state()->add_positions(q);
+      h.Send(j);
+    }
+    h.Seed(scene.seeds[0]);
+    h.Request(1);
+    const auto r = h.Await([](const pb::ServerMessage& m) { return m.has_result(); });
+    EXPECT_EQ(r.result().joints_moved_while_mapping(), moved > 0) << r.result().message();
+    EXPECT_NEAR(r.result().joint_motion_rad(), moved, 1e-9);
+    if (moved > 0) {
+      EXPECT_NE(r.result().message().find("moved by up to 0.30 rad"), std::string::npos) << r.result().message();
+    }
+  }
+}
+
 }  // namespace
 }  // namespace arref::headset

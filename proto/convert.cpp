@@ -106,3 +106,74 @@ std::shared_ptr<const std::string> SharedFrame(const google::protobuf::MessageLi
 }
 
 }  // namespace arref::wire
+
+namespace arref::wire {
+namespace {
+// The optical axes (x right, y down, z forward) in the frame a Unity camera pose becomes once
+// converted (x forward, y left, z up: frames.h maps Unity's right/up/forward so).
+Eigen::Matrix3d R_flu_optical() {
+  Eigen::Matrix3d R;
+  R << 0, 0, 1, -1, 0, 0, 0, -1, 0;
+  return R;
+}
+}  // namespace
+
+Iso3 CameraPoseToOptical(const Iso3& T, FrameConvention frame) {
+  if (frame == FrameConvention::kRos) return T;
+  Iso3 out = T;
+  out.linear() = T.linear() * R_flu_optical();
+  return out;
+}
+
+Iso3 CameraPoseFromOptical(const Iso3& T, FrameConvention frame) {
+  if (frame == FrameConvention::kRos) return T;
+  Iso3 out = T;
+  out.linear() = T.linear() * R_flu_optical().transpose();
+  return out;
+}
+
+Result<DepthFrame> DepthFrameFromProto(const pb::DepthFrame& m) {
+  DepthFrame f;
+  f.intrinsics.width = static_cast<int>(m.width());
+  f.intrinsics.height = static_cast<int>(m.height());
+  f.intrinsics.fx = m.fx(), f.intrinsics.fy = m.fy(), f.intrinsics.cx = m.cx(), f.intrinsics.cy = m.cy();
+  if (m.width() == 0 || m.height() == 0 || m.width() > 4096 || m.height() > 4096)
+    return Status::InvalidArgument(fmt::format("DepthFrame: {}x{} pixels (1-4096 each)", m.width(), m.height()));
+  const std::size_t pixels = static_cast<std::size_t>(m.width()) * m.height();
+  if (m.depth_mm().size() != 2 * pixels)
+    return Status::InvalidArgument(fmt::format("DepthFrame: depth_mm has {} bytes, {}x{} pixels need {}",
+                                               m.depth_mm().size(), m.width(), m.height(), 2 * pixels));
+  const auto frame = FromProto(m.frame());
+  if (!frame.ok()) return frame.status().WithContext("DepthFrame.frame");
+  auto T = PoseFromProto(m.t_world_camera(), *frame);
+  if (!T.ok()) return T.status().WithContext("DepthFrame.T_world_camera");
+  f.T_world_camera = CameraPoseToOptical(*T, *frame);
+  f.time_s = m.timestamp_s();
+  f.wrap_m = m.wrap_m();
+  f.depth_mm.resize(pixels);
+  const auto* bytes = reinterpret_cast<const unsigned char*>(m.depth_mm().data());
+  for (std::size_t i = 0; i < pixels; ++i)
+    f.depth_mm[i] = static_cast<std::uint16_t>(bytes[2 * i] | (bytes[2 * i + 1] << 8));
+  if (auto st = CheckDepthFrame(f); !st.ok()) return st;
+  return f;
+}
+
+pb::DepthFrame DepthFrameToProto(const DepthFrame& f, FrameConvention frame) {
+  pb::DepthFrame m;
+  m.set_width(static_cast<std::uint32_t>(f.intrinsics.width));
+  m.set_height(static_cast<std::uint32_t>(f.intrinsics.height));
+  m.set_fx(f.intrinsics.fx), m.set_fy(f.intrinsics.fy), m.set_cx(f.intrinsics.cx), m.set_cy(f.intrinsics.cy);
+  std::string bytes(2 * f.depth_mm.size(), '\0');
+  for (std::size_t i = 0; i < f.depth_mm.size(); ++i) {
+    bytes[2 * i] = static_cast<char>(f.depth_mm[i] & 0xff);
+    bytes[2 * i + 1] = static_cast<char>(f.depth_mm[i] >> 8);
+  }
+  m.set_depth_mm(std::move(bytes));
+  *m.mutable_t_world_camera() = PoseToProto(CameraPoseFromOptical(f.T_world_camera, frame), frame);
+  m.set_frame(ToProto(frame));
+  m.set_timestamp_s(f.time_s);
+  m.set_wrap_m(f.wrap_m);
+  return m;
+}
+
+}  // namespace arref::wire

@@ -13,6 +13,7 @@
 #include "arref/pipeline/pipeline.h"
 #include "arref/pipeline/seedless.h"
 #include "arref/robot/robot_model.h"
+#include "arref/track/depth_frame.h"
 #include "wire.h"
 
 namespace arref::wire {
@@ -46,6 +47,16 @@ void FillCandidates(const std::vector<FoundInstance>& instances, int primary, Fr
 
 // Names and positions of a JointState; fails on a length mismatch or a non-finite position.
 Result<JointValues> JointsFromProto(const pb::JointState& m);
+
+// A depth frame (track/depth_frame.h) from its message: the camera turned into the optical
+// frame of the internal convention, the depth bytes decoded (little-endian uint16), the time
+// left on the sender's clock. InvalidArgument names what is wrong (sizes, intrinsics, pose).
+Result<DepthFrame> DepthFrameFromProto(const pb::DepthFrame& m);
+// ... and back, for senders (the mock headset), with the camera pose in `frame`.
+pb::DepthFrame DepthFrameToProto(const DepthFrame& f, FrameConvention frame);
+// T_world_optical of a camera pose as the sender gives it in `frame`, and back.
+Iso3 CameraPoseToOptical(const Iso3& T_world_camera_converted, FrameConvention frame);
+Iso3 CameraPoseFromOptical(const Iso3& T_world_optical, FrameConvention frame);
 
 // A message as a shareable frame (several sessions may send the same result).
 std::shared_ptr<const std::string> SharedFrame(const google::protobuf::MessageLite& message);

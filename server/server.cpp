@@ -80,6 +80,7 @@ struct Server::Impl {
             *robots,
             jobs,
             hub,
+            tracking,
             shutting_down,
             memory,
             [this](std::uint64_t id) { return AdmitSession(id); },
@@ -96,6 +97,7 @@ struct Server::Impl {
     for (auto& job : jobs.CloseQueue()) FinishCancelled(*job, "server stopping");
     jobs.CancelAllRunning();
     jobs.Join();
+    tracking.Shutdown();  // its workers send to sessions: stopped before their I/O goes
   }
 
   Status Listen();
@@ -121,6 +123,7 @@ struct Server::Impl {
   ServerConfig config;
   std::unique_ptr<RobotRegistry> robots;
   SubscriberHub hub;
+  TrackingService tracking{hub};
   std::atomic<bool> shutting_down{false};
   MemoryBudget memory;  // outlives everything that holds a reservation (jobs, sessions)
   JobScheduler jobs;

@@ -5,6 +5,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <cmath>
 #include <filesystem>
 #include <new>
 
@@ -18,6 +19,7 @@ namespace {
 namespace pb = wire::pb;
 
 constexpr std::size_t kReadChunk = 64 * 1024;
+constexpr double kJointMotionWhileMappingRad = 0.02;  // a joint moving more smears the arm's mesh
 constexpr auto kLinger = std::chrono::seconds(2);  // time to flush a final error before closing
 
 std::chrono::milliseconds Seconds(double s) { return std::chrono::milliseconds(static_cast<long long>(s * 1000)); }
@@ -217,6 +219,9 @@ void Session::Handle(const pb::ClientMessage& m) {
       case K::kCancel: OnCancel(m.cancel()); break;
       case K::kSubscribe: OnSubscribe(m.subscribe()); break;
       case K::kPing: OnPing(m.ping()); break;
+      case K::kDepthFrame: OnDepthFrame(m.depth_frame()); break;
+      case K::kTrackRequest: OnTrackRequest(m.track_request()); break;
+      case K::kClockReport: OnClockReport(m.clock_report()); break;
       case K::KIND_NOT_SET:
         SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "message has no known kind (newer client?); ignored");
         break;
@@ -388,8 +393,70 @@ void Session::OnSeedPose(const pb::SeedPose& m) {
 // rejected, so that requests which would use it fail instead of running on defaults.
 void Session::OnJointState(const pb::JointState& m) {
   JointStateOutcome outcome = ReadJointState(m, ctx_.robots);
-  if (outcome.keep) joints_[m.robot_id()] = std::move(outcome.joints);
   if (outcome.error != pb::ERROR_CODE_UNSPECIFIED) SendError(outcome.error, outcome.message);
+  if (!outcome.keep) return;
+  const JointValues& joints = outcome.joints.values;
+  if (outcome.joints.rejected.empty()) {
+    // A timestamped state naming its robot is also a sample of that robot's joint stream.
+    if (!m.robot_id().empty() && m.timestamp_s() > 0) {
+      const ServedRobot* robot = ctx_.robots.Find(m.robot_id());
+      auto complete = ctx_.robots.ResolveJoints(*robot, joints);
+      if (complete.ok())
+        if (auto st = ctx_.tracking.AddJoints(m.robot_id(), id_, m.timestamp_s(), *complete); !st.ok())
+          SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "JointState: " + st.message());
+    }
+    if (spatial_.size() > 0)
+      for (const auto& [name, value] : joints) {
+        auto [it, fresh] = joint_range_[m.robot_id()].try_emplace(name, value, value);
+        if (!fresh) it->second = {std::min(it->second.first, value), std::max(it->second.second, value)};
+      }
+  }
+  joints_[m.robot_id()] = std::move(outcome.joints);
+}
+
+double Session::JointMotionWhileMapping(const std::string& robot_id) const {
+  double most = 0.0;
+  for (const std::string& id : {robot_id, std::string()}) {
+    const auto it = joint_range_.find(id);
+    if (it == joint_range_.end()) continue;
+    for (const auto& [name, range] : it->second) most = std::max(most, range.second - range.first);
+  }
+  return most;
+}
+
+void Session::OnTrackRequest(const pb::TrackRequest& m) {
+  const ServedRobot* robot = ctx_.robots.Find(m.robot_id());
+  if (!robot)
+    return SendError(pb::ERROR_CODE_UNKNOWN_ROBOT, fmt::format("TrackRequest: robot '{}' is not served here (served: {})",
+                                                               m.robot_id(), ctx_.robots.Ids()));
+  if (m.stop()) return ctx_.tracking.Stop(m.robot_id(), id_);
+  const auto result_frame = wire::FromProto(m.result_frame());
+  if (!result_frame.ok())
+    return SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "TrackRequest.result_frame: " + result_frame.status().message());
+  std::optional<Iso3> seed = seed_;
+  if (m.has_seed()) {
+    const auto frame = wire::FromProto(m.seed().frame());
+    if (!frame.ok()) return SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "TrackRequest.seed: " + frame.status().message());
+    auto T = wire::PoseFromProto(m.seed().t_world_seed(), *frame);
+    if (!T.ok()) return SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "TrackRequest.seed: " + T.status().message());
+    seed = *T;
+  }
+  if (!seed) return SendError(pb::ERROR_CODE_NO_SEED, "TrackRequest: no seed in the request and no SeedPose in the session");
+  if (auto st = ctx_.tracking.Start(*robot, m.robot_id(), shared_from_this(), *seed, *result_frame); !st.ok())
+    return SendError(wire::ErrorCodeFor(st), "TrackRequest: " + st.message());
+}
+
+void Session::OnDepthFrame(const pb::DepthFrame& m) {
+  auto frame = wire::DepthFrameFromProto(m);
+  if (!frame.ok()) return SendError(pb::ERROR_CODE_BAD_DEPTH_FRAME, fmt::format("DepthFrame {}: {}", m.frame_id(), frame.status().message()));
+  if (auto st = ctx_.tracking.SubmitFrame(m.robot_id(), id_, m.frame_id(), std::move(*frame)); !st.ok())
+    return SendError(pb::ERROR_CODE_NOT_TRACKING, st.message());
+}
+
+void Session::OnClockReport(const pb::ClockReport& m) {
+  if (!std::isfinite(m.offset_s()) || !std::isfinite(m.uncertainty_s()) || m.uncertainty_s() < 0)
+    return SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "ClockReport: offset and uncertainty must be finite, uncertainty >= 0");
+  ctx_.tracking.ReportClock(id_, {m.offset_s(), m.uncertainty_s(), true});
 }
 
 void Session::OnCancel(const pb::Cancel& m) {
@@ -427,10 +494,13 @@ void Session::OnPing(const pb::Ping& m) {
   if (m.payload().size() > kMaxPingPayload)
     return SendError(pb::ERROR_CODE_INVALID_ARGUMENT,
                      fmt::format("Ping payload of {} bytes exceeds {} bytes", m.payload().size(), kMaxPingPayload));
+  const double received = TrackingService::Now();
   pb::ServerMessage reply;
   reply.mutable_pong()->set_nonce(m.nonce());
+  reply.mutable_pong()->set_client_time_s(m.client_time_s());
+  reply.mutable_pong()->set_receive_time_s(received);
   reply.mutable_pong()->set_payload(m.payload());
-  reply.mutable_pong()->set_server_time_s(std::chrono::duration<double>(SteadyClock::now().time_since_epoch()).count());
+  reply.mutable_pong()->set_server_time_s(TrackingService::Now());
   Send(reply);
 }
 
@@ -525,7 +595,8 @@ void Session::AttachCallbacks(Job& job) {
     message.mutable_progress()->set_fraction(fraction);
     self->SendFrame(wire::SharedFrame(message));
   };
-  job.on_done = [weak, hub](const Job& done, const JobOutcome& outcome) {
+  const double joint_motion = JointMotionWhileMapping(job.robot_id);
+  job.on_done = [weak, hub, joint_motion](const Job& done, const JobOutcome& outcome) {
     const wire::ResultHeader header{.request_id = done.request_id,
                                     .robot_id = done.robot_id,
                                     .session_id = done.session_id,
@@ -533,10 +604,18 @@ void Session::AttachCallbacks(Job& job) {
                                     .server_ms = MsSince(done.accepted_at),
                                     .scene_time_unix_s = done.scene_time_unix_s,
                                     .scene_headset_time_s = done.scene_headset_time_s};
-    pb::ServerMessage result = wire::ResultMessage(header, outcome.report, outcome.status, done.result_frame);
+    pb::ServerMessage message = wire::ResultMessage(header, outcome.report, outcome.status, done.result_frame);
     if (outcome.seedless)
-      wire::FillCandidates(outcome.instances, outcome.primary, done.result_frame, result.mutable_result());
-    const auto frame = wire::SharedFrame(result);
+      wire::FillCandidates(outcome.instances, outcome.primary, done.result_frame, message.mutable_result());
+    if (joint_motion > kJointMotionWhileMappingRad) {
+      pb::Result* r = message.mutable_result();
+      r->set_joints_moved_while_mapping(true);
+      r->set_joint_motion_rad(joint_motion);
+      r->set_message(r->message() + (r->message().empty() ? "" : "; ") +
+                     fmt::format("the joints moved by up to {:.2f} rad while the map was made: the arm's mesh is "
+                                 "smeared (TrackRequest with depth frames follows a moving robot)", joint_motion));
+    }
+    const auto frame = wire::SharedFrame(message);
     spdlog::info("session {}: request {} {} ({:.0f} ms queued, {:.0f} ms running){}", done.session_id, done.request_id,
                  outcome.report ? "done" : outcome.status.ToString(), outcome.queue_ms, outcome.run_ms,
                  weak.expired() ? "; session gone, result dropped" : "");
@@ -727,6 +806,7 @@ void Session::CloseNow(const std::string& reason) {
   const auto dropped = ctx_.jobs.CancelSession(id_);  // running ones stop at their next stage
   if (!dropped.empty()) spdlog::info("session {}: {} queued requests dropped with it", id_, dropped.size());
   ctx_.hub.RemoveSession(id_);
+  ctx_.tracking.RemoveSession(id_);
   if (ctx_.on_session_closed) ctx_.on_session_closed(id_);
 }
 

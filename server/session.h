@@ -31,6 +31,7 @@
 #include "robot_registry.h"
 #include "server_config.h"
 #include "subscriber_hub.h"
+#include "tracking_service.h"
 #include "wire.h"
 
 namespace arref::server {
@@ -44,6 +45,7 @@ struct ServerContext {
   RobotRegistry& robots;
   JobScheduler& jobs;
   SubscriberHub& hub;
+  TrackingService& tracking;
   std::atomic<bool>& shutting_down;
   MemoryBudget& memory;
   // A connection that completed Hello asks to become a session (limits.max_sessions); an error
@@ -103,6 +105,9 @@ class Session : public std::enable_shared_from_this<Session> {
   void OnCancel(const wire::pb::Cancel& m);
   void OnSubscribe(const wire::pb::Subscribe& m);
   void OnPing(const wire::pb::Ping& m);
+  void OnDepthFrame(const wire::pb::DepthFrame& m);
+  void OnTrackRequest(const wire::pb::TrackRequest& m);
+  void OnClockReport(const wire::pb::ClockReport& m);
 
   // A job for the request (request_builder.h) with this session's scene and callbacks; an
   // error is sent and nullptr returned on bad input.
@@ -156,6 +161,9 @@ class Session : public std::enable_shared_from_this<Session> {
   std::optional<Iso3> seed_;
   FrameConvention seed_frame_ = FrameConvention::kUnity;
   std::map<std::string, SessionJoints> joints_;  // latest JointState by robot id; "" applies to every robot
+  // Per robot id, each joint's lowest and highest value sent since the first surface arrived.
+  std::map<std::string, std::map<std::string, std::pair<double, double>>> joint_range_;
+  double JointMotionWhileMapping(const std::string& robot_id) const;
   std::set<std::uint64_t> in_flight_;
   bool shutdown_notified_ = false;
 

@@ -34,6 +34,7 @@
 #include "arref/sim/room_simulator.h"
 #include "frame_decoder.h"
 #include "headset_client.h"
+#include "track_client.h"
 #include "test_support.h"
 
 extern char** environ;
@@ -1172,6 +1173,132 @@ TEST(ServerHardening, OrderingHalfCloseAndStrictFields) {
   ASSERT_TRUE(result.has_value()) << "the half-closed client's Result was lost";
   EXPECT_EQ(result->status(), pb::RESULT_STATUS_OK) << result->message();
   EXPECT_NE(server.Log().find("every result delivered"), std::string::npos);
+}
+
+// ---------------------------------------------------------------- continuous referencing
+
+// A headset streams simulated depth frames in real time through the server, a robot-side
+// session streams the joints on its own clock, a third session subscribes: every frame is
+// answered or counted as dropped, the filtered pose follows the truth through the world jump.
+TEST(ServerIntegration, TrackingStreamsUpdatesThroughAWorldJump) {
+  ServerProcess server;
+  TrackHeadsetOptions o;
+  o.port = server.port();
+  o.duration_s = 4.0;
+  o.jump_at_s = 2.0;
+  o.rng_seed = 5;
+  const TrackHeadsetRun run = RunTrackingHeadset(o);
+  ASSERT_TRUE(run.status.ok()) << run.status.ToString();
+  for (const auto& e : run.errors) ADD_FAILURE() << "server error: " << e.message();
+  EXPECT_EQ(run.frames_sent, 120);
+  EXPECT_EQ(static_cast<std::uint64_t>(run.updates.size()) + run.frames_dropped, 120u);
+  EXPECT_LT(std::abs(run.reported_offset_error_s), 0.005) << "the headset's clock offset, from round trips";
+  int scored = 0, within = 0;
+  std::vector<double> latency, server_latency;
+  for (const auto& u : run.updates) {
+    latency.push_back(u.latency_ms);
+    server_latency.push_back(u.server_latency_ms);
+    if (u.true_time_s < 1.0 || (u.after_jump && u.true_time_s < run.jump_time_s + 1.0)) continue;
+    ++scored;
+    if (u.add_mm < 10) ++within;
+  }
+  ASSERT_GT(scored, 20);
+  EXPECT_GE(within, 0.9 * scored) << within << " of " << scored << " updates within 10 mm";
+  std::sort(latency.begin(), latency.end());
+  std::sort(server_latency.begin(), server_latency.end());
+  // Client side: frame sent -> update read (the client reads between rendering frames, so
+  // this includes up to one frame's simulation); server side: frame received -> update sent.
+  std::printf("tracking through the server: %zu updates, %llu dropped, latency client median %.1f p95 %.1f ms, "
+              "server median %.1f p95 %.1f ms\n",
+              run.updates.size(), static_cast<unsigned long long>(run.frames_dropped), latency[latency.size() / 2],
+              latency[latency.size() * 95 / 100], server_latency[server_latency.size() / 2],
+              server_latency[server_latency.size() * 95 / 100]);
+  EXPECT_EQ(run.subscriber_updates, static_cast<int>(run.updates.size())) << "the subscriber sees every update";
+}
+
+// Frames sent faster than they are processed: the newest wins, the rest are dropped and
+// counted, and nothing queues up.
+TEST(ServerIntegration, TrackingDropsOldestFramesUnderABurst) {
+  ServerProcess server;
+  TrackHeadsetOptions o;
+  o.port = server.port();
+  o.duration_s = 2.0;
+  o.jump_at_s = 100.0;
+  o.burst = 10;
+  o.subscriber = false;
+  const TrackHeadsetRun run = RunTrackingHeadset(o);
+  ASSERT_TRUE(run.status.ok()) << run.status.ToString();
+  EXPECT_EQ(run.frames_sent, 60);
+  EXPECT_GT(run.frames_dropped, 0u);
+  EXPECT_EQ(static_cast<std::uint64_t>(run.updates.size()) + run.frames_dropped, 60u);
+  // The updates come in frame order: a dropped frame is never processed late.
+  for (std::size_t i = 1; i < run.updates.size(); ++i) EXPECT_GT(run.updates[i].frame_id, run.updates[i - 1].frame_id);
+}
+
+TEST(ServerIntegration, TrackingErrorsAreClearAndKeepTheSession) {
+  ServerProcess server;
+  ScriptedHeadset h(server);
+  ASSERT_TRUE(h.Hello().has_hello_reply());
+  pb::ClientMessage frame;
+  frame.mutable_depth_frame()->set_robot_id("kr5");
+  frame.mutable_depth_frame()->set_width(4);
+  frame.mutable_depth_frame()->set_height(2);
+  frame.mutable_depth_frame()->set_fx(10), frame.mutable_depth_frame()->set_fy(10);
+  frame.mutable_depth_frame()->set_depth_mm(std::string(16, '\1'));
+  frame.mutable_depth_frame()->set_frame(pb::FRAME_CONVENTION_ROS);
+  frame.mutable_depth_frame()->mutable_t_world_camera()->mutable_orientation()->set_w(1);
+  frame.mutable_depth_frame()->mutable_t_world_camera()->mutable_position()->set_z(1);
+  h.Send(frame);
+  auto e = h.Await([](const pb::ServerMessage& m) { return m.has_error(); });
+  EXPECT_EQ(e.error().code(), pb::ERROR_CODE_NOT_TRACKING) << e.error().message();
+  frame.mutable_depth_frame()->set_depth_mm(std::string(15, '\1'));
+  h.Send(frame);
+  e = h.Await([](const pb::ServerMessage& m) { return m.has_error(); });
+  EXPECT_EQ(e.error().code(), pb::ERROR_CODE_BAD_DEPTH_FRAME);
+  EXPECT_NE(e.error().message().find("15 bytes"), std::string::npos) << e.error().message();
+  pb::ClientMessage track;
+  track.mutable_track_request()->set_robot_id("nope");
+  h.Send(track);
+  e = h.Await([](const pb::ServerMessage& m) { return m.has_error(); });
+  EXPECT_EQ(e.error().code(), pb::ERROR_CODE_UNKNOWN_ROBOT);
+  track.mutable_track_request()->set_robot_id("kr5");
+  track.mutable_track_request()->set_result_frame(pb::FRAME_CONVENTION_ROS);
+  h.Send(track);
+  e = h.Await([](const pb::ServerMessage& m) { return m.has_error(); });
+  EXPECT_EQ(e.error().code(), pb::ERROR_CODE_NO_SEED);
+  pb::ClientMessage ping;
+  ping.mutable_ping()->set_nonce(7);
+  ping.mutable_ping()->set_client_time_s(3.5);
+  h.Send(ping);
+  const auto pong = h.Await([](const pb::ServerMessage& m) { return m.has_pong(); });
+  EXPECT_EQ(pong.pong().client_time_s(), 3.5);
+  EXPECT_LE(pong.pong().receive_time_s(), pong.pong().server_time_s());
+}
+
+// Joints that move while the map is made smear the arm's mesh: the one-shot result says so.
+TEST(ServerIntegration, ResultSaysWhenTheJointsMovedWhileMapping) {
+  ServerProcess server;
+  const HeadsetScene scene = Scene(1);
+  for (const double moved : {0.0, 0.3}) {
+    ScriptedHeadset h(server);
+    ASSERT_TRUE(h.Hello().has_hello_reply());
+    h.Upload(scene);
+    for (const double q : {0.1, 0.1 + moved}) {
+      pb::ClientMessage j;
+      j.mutable_joint_state()->set_robot_id("kr5");
+      j.mutable_joint_state()->add_names("joint_a1");
+      j.mutable_joint_state()->add_positions(q);
+      h.Send(j);
+    }
+    h.Seed(scene.seeds[0]);
+    h.Request(1);
+    const auto r = h.Await([](const pb::ServerMessage& m) { return m.has_result(); });
+    EXPECT_EQ(r.result().joints_moved_while_mapping(), moved > 0) << r.result().message();
+    EXPECT_NEAR(r.result().joint_motion_rad(), moved, 1e-9);
+    if (moved > 0) {
+      EXPECT_NE(r.result().message().find("moved by up to 0.30 rad"), std::string::npos) << r.result().message();
+    }
+  }
 }
 
 }  // namespace

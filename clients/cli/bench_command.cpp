@@ -47,6 +47,7 @@ struct BenchArgs {
   int robust_seeds = 2;
   std::string auto_methods = "arref-auto,sliding-box-shot,super4pcs,fpfh-ransac";
   int auto_rooms = 2;
+  bench::TrackConfig track;
   std::string command_line;
 };
 
@@ -93,6 +94,7 @@ int Run(const BenchArgs& args) {
   if (!auto_methods.ok()) return Fail(auto_methods.status());
   config.auto_methods = *auto_methods, config.auto_rooms = args.auto_rooms;
   rc.robots = args.robots;
+  config.track = args.track;
   if (rc.robots.empty()) {
     // The built-in robot, and every vendor package beside the checkout (when it is there).
     rc.robots.push_back("builtin");
@@ -132,6 +134,9 @@ int Run(const BenchArgs& args) {
     if (auto st = bench::RobustnessExperiment(config, &tables); !st.ok()) return Fail(st.WithContext("robustness"));
   if (args.only.find("auto") != std::string::npos)
     if (auto st = bench::AutoExperiment(config, &tables); !st.ok()) return Fail(st.WithContext("auto"));
+  // Only when asked for: minutes of simulated streams per robot.
+  if (args.only.find("track") != std::string::npos)
+    if (auto st = bench::TrackExperiment(config, &tables); !st.ok()) return Fail(st.WithContext("track"));
   const double minutes = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count() / 60;
   tables.notes.push_back(fmt::format("{} runs in {:.1f} min with {} parallel job(s)", tables.runs.size(), minutes, config.jobs));
   if (config.quick) tables.notes.push_back("--quick: a subset (small configuration only, fewer cells, seeds and parameter sets)");
@@ -189,8 +194,8 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
                   "Scenes experiment: write a PNG of each cell's first result per method into this folder "
                   "(arref register --image's picture)");
   cmd->add_option("--only", args->only,
-                  "Run only these experiments: sweep, perturb, scenes, robustness, auto (comma-separated; robustness "
-                  "and auto run only when named)");
+                  "Run only these experiments: sweep, perturb, scenes, robustness, auto, track (comma-separated; "
+                  "robustness, auto and track run only when named)");
   cmd->add_option("--robots", args->robots,
                   "Robustness: robot URDFs, comma-separated, 'builtin' for the built-in robot (default: builtin and "
                   "every URDF under ../shared/robots/*/urdf/, which is also the default --package-path)")
@@ -215,6 +220,18 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
       ->capture_default_str();
   cmd->add_option("--auto-rooms", args->auto_rooms, "Auto experiment: rooms per robot, arm count (0, 1, 2) and mesher")
       ->check(CLI::Range(1, 1000))->capture_default_str();
+  cmd->add_option("--track-kinds", args->track.kinds, "Track: frame kinds (long-throw, ahat)")
+      ->delimiter(',')->check(CLI::IsMember({"long-throw", "ahat"}));
+  cmd->add_option("--track-streams", args->track.streams, "Track: streams per robot and frame kind")
+      ->check(CLI::Range(1, 100))->capture_default_str();
+  cmd->add_option("--track-seconds", args->track.seconds, "Track: seconds per stream")->check(CLI::Range(2.0, 3600.0))->capture_default_str();
+  cmd->add_option("--track-baseline-frames", args->track.baseline_frames,
+                  "Track: frames per long-throw stream also registered the one-shot way (PCL ICP), 0: none")
+      ->check(CLI::Range(0, 1000))->capture_default_str();
+  cmd->add_option("--track-long-minutes", args->track.long_minutes, "Track: minutes of the long stream (drift, memory; 0: none)")
+      ->check(CLI::Range(0.0, 120.0))->capture_default_str();
+  cmd->add_option("--track-long-fps", args->track.long_fps, "Track: frame rate of the long stream")
+      ->check(CLI::Range(1.0, 60.0))->capture_default_str();
   cmd->callback([args, exit_code, cmd] {
     args->command_line = "arref bench";
     for (const auto& o : cmd->get_options())

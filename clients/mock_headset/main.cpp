@@ -13,6 +13,7 @@
 #include <nlohmann/json.hpp>
 
 #include "headset_client.h"
+#include "track_client.h"
 #include "client_io.h"
 
 namespace {
@@ -37,6 +38,8 @@ struct Args {
   std::string log_level = "warn";
   std::string recording;
   bool fast = false;
+  bool track = false;
+  TrackHeadsetOptions track_options;
 };
 
 void AddFlags(CLI::App& app, Args& a) {
@@ -77,6 +80,15 @@ void AddFlags(CLI::App& app, Args& a) {
       ->check(CLI::Range(0.0, 3600.0));
   app.add_option("--bad-every", a.bad_every, "Soak: every Nth headset misbehaves (cycling through the misbehaviours)")
       ->capture_default_str()->check(CLI::Range(2, 1000));
+  app.add_flag("--track", a.track,
+               "Continuous referencing instead: stream a simulated track (depth frames, joint states on their own "
+               "connection, one world jump) in real time and compare the updates with the truth");
+  app.add_option("--track-kind", a.track_options.kind, "--track: long-throw or ahat")
+      ->check(CLI::IsMember({"long-throw", "ahat"}))->capture_default_str();
+  app.add_option("--track-seconds", a.track_options.duration_s, "--track: stream length")
+      ->check(CLI::Range(1.0, 3600.0))->capture_default_str();
+  app.add_option("--track-burst", a.track_options.burst, "--track: frames sent at once (to see drops)")
+      ->check(CLI::Range(1, 1000))->capture_default_str();
   app.add_option("--log-level", a.log_level, "trace, debug, info, warn, error")->capture_default_str();
 }
 
@@ -263,6 +275,43 @@ int RunSoak(const HeadsetScene& scene, const Args& a) {
   return failed == 0 ? 0 : 1;
 }
 
+// Median and 95th percentile of a list (sorted in place).
+std::pair<double, double> MedianP95(std::vector<double>& v) {
+  if (v.empty()) return {0.0, 0.0};
+  std::sort(v.begin(), v.end());
+  return {v[v.size() / 2], v[std::min(v.size() - 1, v.size() * 95 / 100)]};
+}
+
+int RunTrack(Args& args) {
+  TrackHeadsetOptions& o = args.track_options;
+  o.host = args.options.host, o.port = args.options.port, o.robot_id = args.options.robot_id, o.rng_seed = args.rng_seed;
+  const TrackHeadsetRun run = RunTrackingHeadset(o);
+  if (!run.status.ok()) {
+    std::cout << "FAILED: " << run.status.ToString() << std::endl;
+    return 1;
+  }
+  for (const auto& e : run.errors) std::cout << "server error " << wire::ErrorCodeName(e.code()) << ": " << e.message() << "\n";
+  std::vector<double> add, client_ms, server_ms, process_ms;
+  int scored = 0, within = 0;
+  for (const auto& u : run.updates) {
+    client_ms.push_back(u.latency_ms), server_ms.push_back(u.server_latency_ms), process_ms.push_back(u.process_ms);
+    if (u.true_time_s < 1.0 || (u.after_jump && u.true_time_s < run.jump_time_s + 1.0)) continue;
+    ++scored, within += u.add_mm < 10;
+    add.push_back(u.add_mm);
+  }
+  const auto [add_med, add_p95] = MedianP95(add);
+  const auto [c_med, c_p95] = MedianP95(client_ms);
+  const auto [s_med, s_p95] = MedianP95(server_ms);
+  const auto [p_med, p_p95] = MedianP95(process_ms);
+  std::cout << fmt::format(
+      "{} frames sent, {} updates, {} dropped; {} of {} steady updates within ADD 10 mm (median {:.1f}, p95 {:.1f} mm); "
+      "latency frame sent -> update read median {:.1f} ms p95 {:.1f}; server frame received -> update sent median "
+      "{:.1f} p95 {:.1f}; processing median {:.1f} p95 {:.1f}; clock offset error {:.2f} ms; subscriber got {}\n",
+      run.frames_sent, run.updates.size(), run.frames_dropped, within, scored, add_med, add_p95, c_med, c_p95, s_med,
+      s_p95, p_med, p_p95, 1000 * run.reported_offset_error_s, run.subscriber_updates);
+  return within >= 0.95 * scored ? 0 : 1;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -274,6 +323,7 @@ int main(int argc, char** argv) {
   spdlog::set_level(spdlog::level::from_str(args.log_level));
   args.options.port = static_cast<std::uint16_t>(args.port);
   args.options.misbehaviour = ChosenMisbehaviour(args);
+  if (args.track) return RunTrack(args);
   if (args.clients == 1 && args.options.repeat == 1 && !args.json)
     args.options.on_progress = [](const wire::pb::Progress& p) {
       std::cerr << fmt::format("request {}: {} {:.0f} %\n", p.request_id(), p.stage(), p.fraction() * 100);

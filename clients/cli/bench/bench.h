@@ -46,6 +46,16 @@ struct RobustnessConfig {
   int seeds = 2;  // per seed family and cell
 };
 
+// The tracking experiment (issue 28): robots as RobustnessConfig's, with its split.
+struct TrackConfig {
+  std::vector<std::string> kinds = {"long-throw", "ahat"};
+  int streams = 2;            // per robot and frame kind
+  double seconds = 20.0;      // per stream
+  int baseline_frames = 8;    // per long-throw stream, the one-shot baseline
+  double long_minutes = 10.0; // the long stream (0: none)
+  double long_fps = 5.0;      // at the long-throw camera's real rate, to keep it affordable
+};
+
 struct Config {
   std::vector<std::string> methods;          // swept (Tables I, II)
   std::vector<std::string> perturb_methods;  // Table III
@@ -72,6 +82,7 @@ struct Config {
   // The auto experiment (seedless, whole rooms): its robots, meshers and split are robustness's.
   std::vector<std::string> auto_methods = {"arref-auto", "sliding-box-shot", "super4pcs", "fpfh-ransac"};
   int auto_rooms = 2;  // per robot, arm count (0, 1, 2) and mesher
+  TrackConfig track;
 };
 
 // A simulated cell with everything a run needs.
@@ -150,6 +161,7 @@ Status PerturbExperiment(const RobotModel& robot, const Config& config, Tables* 
 Status ScenesExperiment(const RobotModel& robot, const Config& config, Tables* tables);     // methods x scene kinds
 Status RobustnessExperiment(const Config& config, Tables* tables);  // robots x meshers x seed families
 Status AutoExperiment(const Config& config, Tables* tables);        // seedless, whole rooms (auto.cpp)
+Status TrackExperiment(const Config& config, Tables* tables);       // robots x frame kinds, to track.md
 
 // One bench cell of `kind` (as MakeCells makes them) simulated from `seed` by `mesher`; the
 // model side is shared when given (the same robot and joints), else built.

@@ -1,0 +1,101 @@
+// Continuous referencing of a moving robot from depth frames (issue 28): per frame, the exact
+// model posed at the frame's joints is ray cast from the frame's camera at the filtered pose,
+// the depth pixels around it are registered to it (point-to-plane ICP, 4 DoF about gravity),
+// and the measurement goes through a gated Kalman filter. When the fit is lost (a world jump,
+// a bad prediction), the tracker re-acquires: first from where the camera says the robot is
+// (the world may have jumped under a steady head), then by a grid search round both guesses.
+#pragma once
+
+#include <memory>
+#include <optional>
+#include <string>
+
+#include "arref/base/geometry.h"
+#include "arref/base/status.h"
+#include "arref/robot/robot_model.h"
+#include "arref/track/depth_frame.h"
+#include "arref/track/model_caster.h"
+#include "arref/track/pose_filter.h"
+
+namespace arref {
+
+struct TrackerSettings {
+  double max_range_m = 5.0;
+  // Traced every stride-th pixel in u and v, for the model and the depth alike; 0: chosen from
+  // the image width (2 at 320, 3 at 512).
+  int stride = 0;
+  std::size_t dense_below_points = 1000;  // fewer model points at that stride: every pixel
+  std::size_t max_source_points = 2500;  // depth points per ICP
+  double crop_margin_m = 0.08;           // around the posed model's bounds at the prediction
+  double floor_clearance_m = 0.03;       // depth points this close above the base's bottom are floor
+  std::vector<double> icp_distances_m = {0.06, 0.025};
+  int icp_iterations = 12;
+  double kernel_min_m = 0.008;
+  // A model pixel agrees with the depth when they differ by less than this (plus 2 % of range);
+  // it disagrees when the depth lies behind the model by more (seen through the model).
+  double agree_m = 0.02;
+  double agree_range_fraction = 0.015;
+  double min_agreement = 0.6;     // below: the fit is lost
+  // A pose found by re-acquisition must agree at least this well before the filter restarts
+  // there: a wrong basin next to the robot often agrees with two thirds of its pixels.
+  double min_reacquire_agreement = 0.85;
+  // ... and cover at least this share of the visible model pixels (the rest occluded): a model
+  // placed on the wrong object agrees only where that object happens to lie.
+  double min_reacquire_coverage = 0.5;
+  std::size_t min_model_points = 60;
+  // Frames with a lost fit before re-acquisition when the camera has not jumped (one lost frame
+  // may be a hand in front of the sensor).
+  int lost_frames_before_search = 1;
+  // The grid search: positions round each guess, yaws round its heading.
+  double search_step_m = 0.2;
+  int search_steps = 2;           // (2 steps + 1)^2 positions
+  double search_yaw_step_deg = 10.0;
+  int search_yaw_steps = 3;       // 2 steps + 1 yaws
+  std::size_t search_points = 400;
+  // ICP's covariance assumes independent pixels; neighbouring ones share model and calibration
+  // errors, so it is inflated by this.
+  double covariance_inflation = 25.0;
+  // A camera faster than this between frames has had its world moved under it.
+  double camera_jump_m_per_s = 3.0;
+  double camera_jump_deg_per_s = 360.0;
+  PoseFilterSettings filter;
+};
+
+enum class TrackState { kTracking, kRejected, kLost, kReacquired, kJump, kNoRobot };
+const char* TrackStateName(TrackState state);
+
+struct TrackResult {
+  TrackState state = TrackState::kLost;
+  Iso3 T_world_base = Iso3::Identity();  // filtered
+  Mat4 covariance = Mat4::Identity();    // of (x, y, z, yaw), m^2 and rad^2
+  std::optional<Iso3> T_world_base_measured;  // this frame's registration, when it fit
+  double agreement = 0.0;         // fraction of visible model pixels the depth agrees with
+  std::size_t model_points = 0;
+  std::size_t depth_points = 0;
+  int hypotheses = 0;             // poses tried (1 when tracking)
+  double model_ms = 0.0, icp_ms = 0.0, total_ms = 0.0;
+};
+
+class Tracker {
+ public:
+  static Result<Tracker> Create(std::shared_ptr<const RobotModel> robot, TrackerSettings settings = {});
+  Tracker(Tracker&&) noexcept;
+  Tracker& operator=(Tracker&&) noexcept;
+  ~Tracker();
+
+  // A first guess of T_world_base (a one-shot registration, a seed): the first frames search
+  // round it.
+  void Seed(const Iso3& T_world_base);
+  bool seeded() const;
+  // Registers one frame with the robot at `joints` (complete or partial actuated values;
+  // clamped into the limits).
+  Result<TrackResult> Process(const DepthFrame& frame, const JointValues& joints);
+  const TrackerSettings& settings() const;
+
+ private:
+  struct Impl;
+  explicit Tracker(std::unique_ptr<Impl> impl);
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace arref

@@ -1,0 +1,392 @@
+#include "arref/track/tracker.h"
+
+#include <fmt/format.h>
+#include <spdlog/spdlog.h>
+#include <tbb/blocked_range.h>
+#include <tbb/parallel_reduce.h>
+
+#include <Eigen/Cholesky>
+#include <algorithm>
+#include <cmath>
+#include <numbers>
+
+#include "arref/base/clock.h"
+#include "arref/icp/fast_icp.h"
+#include "arref/scene/sampling.h"
+
+namespace arref {
+
+const char* TrackStateName(TrackState state) {
+  switch (state) {
+    case TrackState::kTracking: return "tracking";
+    case TrackState::kRejected: return "rejected";
+    case TrackState::kLost: return "lost";
+    case TrackState::kReacquired: return "reacquired";
+    case TrackState::kJump: return "jump";
+    case TrackState::kNoRobot: return "no_robot";
+  }
+  return "?";
+}
+
+Status CheckDepthFrame(const DepthFrame& f) {
+  if (!f.intrinsics.valid())
+    return Status::InvalidArgument(fmt::format("depth frame: intrinsics {}x{} fx {} fy {} are not usable", f.intrinsics.width,
+                                               f.intrinsics.height, f.intrinsics.fx, f.intrinsics.fy));
+  const std::size_t n = static_cast<std::size_t>(f.intrinsics.width) * f.intrinsics.height;
+  if (f.depth_mm.size() != n)
+    return Status::InvalidArgument(fmt::format("depth frame: {} depth values for {}x{} pixels", f.depth_mm.size(),
+                                               f.intrinsics.width, f.intrinsics.height));
+  if (!f.T_world_camera.matrix().allFinite() || !std::isfinite(f.time_s))
+    return Status::InvalidArgument("depth frame: the camera pose or the timestamp is not finite");
+  if (!(f.wrap_m >= 0) || !std::isfinite(f.wrap_m)) return Status::InvalidArgument("depth frame: wrap_m must be >= 0");
+  return Status::Ok();
+}
+
+namespace {
+
+constexpr double kDeg = std::numbers::pi / 180.0;
+
+// One frame's registration from one starting pose.
+struct Measurement {
+  bool fits = false;
+  Iso3 T_world_base = Iso3::Identity();
+  Mat4 covariance = Mat4::Identity();
+  double agreement = 0.0;
+  double coverage = 0.0;  // agreeing pixels of all visible model pixels with a depth
+  std::size_t model_points = 0, depth_points = 0;
+};
+
+// A depth in metres, unwrapped (when the sensor wraps) to the one nearest the expected depth.
+float Unwrapped(float d, float expected, double wrap_m) {
+  if (wrap_m <= 0 || d <= 0) return d;
+  const double k = std::round((expected - d) / wrap_m);
+  return static_cast<float>(d + std::max(0.0, k) * wrap_m);
+}
+
+}  // namespace
+
+struct Tracker::Impl {
+  std::shared_ptr<const RobotModel> robot;
+  TrackerSettings settings;
+  ModelCaster caster;
+  std::vector<JointInfo> joints;
+  PoseFilter filter;
+  std::optional<Iso3> seed;
+  // The last frame that fit: where its camera was and where the filter put the base.
+  std::optional<Iso3> last_T_world_camera;
+  std::optional<Iso3> last_T_world_base;
+  std::optional<std::pair<double, Iso3>> previous_camera;  // the last frame's time and camera pose
+  int lost_frames = 0;
+  bool CameraJumped(const DepthFrame& f) const;
+
+  int StrideFor(const DepthIntrinsics& c) const {
+    return settings.stride > 0 ? settings.stride : std::max(1, (c.width + 159) / 160);
+  }
+  Status PoseModel(const JointValues& given);
+  ModelView RenderModel(const DepthFrame& f, const Iso3& T_world_base) const;
+  Measurement Measure(const DepthFrame& f, const Iso3& T0, const std::vector<double>& distances, int iterations,
+                      TrackResult* out) const;
+  PointCloud DepthPoints(const DepthFrame& f, const ModelView& view, const Iso3& T_world_base, const Aabb& crop) const;
+  // Sets m->agreement and m->coverage at m->T_world_base.
+  void Agreement(const DepthFrame& f, const ModelView& view, Measurement* m) const;
+  bool Reacquires(const Measurement& m) const {
+    return m.agreement >= settings.min_reacquire_agreement && m.coverage >= settings.min_reacquire_coverage;
+  }
+  Mat4 Covariance(const PointCloud& source, const TargetCloud& target, const Iso3& T_base_world) const;
+  std::optional<Iso3> GridSearch(const DepthFrame& f, const std::vector<Iso3>& guesses, TrackResult* out) const;
+};
+
+// Faster than a head moves: the headset's world moved under the camera (re-localisation).
+bool Tracker::Impl::CameraJumped(const DepthFrame& f) const {
+  if (!previous_camera) return false;
+  const double dt = std::max(1e-3, f.time_s - previous_camera->first);
+  const Iso3 delta = previous_camera->second.inverse() * f.T_world_camera;
+  const double angle_deg = Eigen::AngleAxisd(delta.linear()).angle() / kDeg;
+  return delta.translation().norm() / dt > settings.camera_jump_m_per_s || angle_deg / dt > settings.camera_jump_deg_per_s;
+}
+
+Status Tracker::Impl::PoseModel(const JointValues& given) {
+  JointValues clamped = given;
+  for (const JointInfo& j : joints) {
+    auto it = clamped.find(j.name);
+    if (it != clamped.end() && j.has_limits) it->second = std::clamp(it->second, j.lower, j.upper);
+  }
+  return caster.Pose(*robot, clamped);
+}
+
+PointCloud Tracker::Impl::DepthPoints(const DepthFrame& f, const ModelView& view, const Iso3& T_world_base,
+                                      const Aabb& crop) const {
+  const DepthIntrinsics& c = f.intrinsics;
+  const int s = view.stride, gw = c.width / s, gh = c.height / s;
+  const Eigen::Isometry3f T_base_camera = (T_world_base.inverse() * f.T_world_camera).cast<float>();
+  const Eigen::Isometry3f T_world_camera = f.T_world_camera.cast<float>();
+  PointCloud out;
+  for (int gv = 0; gv < gh; ++gv)
+    for (int gu = 0; gu < gw; ++gu) {
+      float d = f.DepthAt(gu * s, gv * s);
+      if (d <= 0) continue;
+      if (f.wrap_m > 0) {
+        // Only where the model predicts a depth can a wrapped one be told apart.
+        const float expected = view.z_depth[static_cast<std::size_t>(gv) * gw + gu];
+        if (expected <= 0) continue;
+        d = Unwrapped(d, expected, f.wrap_m);
+      }
+      const Vec3f p_cam = (c.Ray(gu * s, gv * s) * d).cast<float>();
+      if (!crop.Contains(T_base_camera * p_cam)) continue;
+      out.points.push_back(T_world_camera * p_cam);
+    }
+  return out;
+}
+
+// The fraction of the model's visible pixels whose depth agrees with the model moved to
+// T_world_base, of those that agree or that the depth sees through (a depth nearer than the
+// model is an occluder, and says nothing).
+void Tracker::Impl::Agreement(const DepthFrame& f, const ModelView& view, Measurement* m) const {
+  const DepthIntrinsics& c = f.intrinsics;
+  const Eigen::Isometry3f T_camera_base = (f.T_world_camera.inverse() * m->T_world_base).cast<float>();
+  std::size_t agree = 0, through = 0, occluded = 0;
+  for (const Vec3f& p : view.points_base.points) {
+    const Vec3f q = T_camera_base * p;
+    if (q.z() <= 0.05f) continue;
+    const int u = static_cast<int>(std::floor(c.fx * q.x() / q.z() + c.cx));
+    const int v = static_cast<int>(std::floor(c.fy * q.y() / q.z() + c.cy));
+    if (u < 0 || v < 0 || u >= c.width || v >= c.height) continue;
+    const float d = Unwrapped(f.DepthAt(u, v), q.z(), f.wrap_m);
+    if (d <= 0) continue;
+    const float tol = static_cast<float>(settings.agree_m + settings.agree_range_fraction * q.z());
+    if (std::abs(d - q.z()) < tol) ++agree;
+    else if (d > q.z()) ++through;
+    else ++occluded;
+  }
+  m->agreement = agree + through ? static_cast<double>(agree) / static_cast<double>(agree + through) : 0.0;
+  m->coverage = agree ? static_cast<double>(agree) / static_cast<double>(agree + through + occluded) : 0.0;
+}
+
+// ICP's 4-DoF covariance at the fit, mapped from its perturbation of T_base_world to the
+// state (x, y, z, yaw) of T_world_base.
+Mat4 Tracker::Impl::Covariance(const PointCloud& source, const TargetCloud& target, const Iso3& T_base_world) const {
+  const Eigen::Isometry3f T = T_base_world.cast<float>();
+  const float max_sq = static_cast<float>(settings.icp_distances_m.back() * settings.icp_distances_m.back());
+  Mat4 H = Mat4::Zero();
+  double sq = 0;
+  std::size_t n = 0;
+  for (const Vec3f& s : source.points) {
+    const Vec3f p = T * s;
+    std::uint32_t j;
+    float d2;
+    if (!target.index().NearestWithin(p, max_sq, &j, &d2)) continue;
+    const Eigen::Vector3d nrm = target.normals()[j].cast<double>(), pd = p.cast<double>();
+    const double r = nrm.dot(pd - target.index().points()[j].cast<double>());
+    Vec4 J;
+    J << nrm, pd.cross(nrm).z();
+    H += J * J.transpose();
+    sq += r * r;
+    ++n;
+  }
+  if (n < 10) return Mat4::Identity();
+  const double sigma2 = sq / static_cast<double>(n - 4);
+  Mat4 cov_xi = settings.covariance_inflation * sigma2 * H.ldlt().solve(Mat4::Identity());
+  // T_world_base exp(-xi): the translation turns by R_world_base, both change sign.
+  Mat4 J = Mat4::Zero();
+  J.topLeftCorner<3, 3>() = -T_base_world.linear().transpose();
+  J(3, 3) = -1;
+  Mat4 cov = J * cov_xi * J.transpose();
+  return 0.5 * (cov + cov.transpose());
+}
+
+// A small or distant robot covers few pixels: traced at every pixel then, so that the fit
+// keeps enough points to be constrained (MH5 at 1.2 m in AHAT frames had 230-280 at stride 3).
+ModelView Tracker::Impl::RenderModel(const DepthFrame& f, const Iso3& T_world_base) const {
+  const Iso3 T_base_camera = T_world_base.inverse() * f.T_world_camera;
+  const int stride = StrideFor(f.intrinsics);
+  ModelView view = caster.Render(f.intrinsics, T_base_camera, settings.max_range_m, stride);
+  if (stride > 1 && view.points_base.size() < settings.dense_below_points)
+    view = caster.Render(f.intrinsics, T_base_camera, settings.max_range_m, 1);
+  return view;
+}
+
+Measurement Tracker::Impl::Measure(const DepthFrame& f, const Iso3& T0, const std::vector<double>& distances,
+                                   int iterations, TrackResult* out) const {
+  Measurement m;
+  LapTimer lap;
+  const ModelView view = RenderModel(f, T0);
+  m.model_points = view.points_base.size();
+  Aabb crop = view.bounds_base.Grown(static_cast<float>(settings.crop_margin_m));
+  crop.min.z() = view.bounds_base.min.z() + static_cast<float>(settings.floor_clearance_m);
+  PointCloud source = DepthPoints(f, view, T0, crop);
+  m.depth_points = source.size();
+  out->model_ms += lap.Lap();
+  if (m.model_points < settings.min_model_points || source.size() < settings.min_model_points) return m;
+  source = Thinned(source, settings.max_source_points);
+  const TargetCloud target(view.points_base);
+  IcpSettings icp;
+  icp.yaw_only = true;
+  icp.max_iterations = iterations;
+  auto fit = AlignCoarseToFine(source, target, T0.inverse(), distances, icp);
+  out->icp_ms += lap.Lap();
+  if (!fit.ok() || fit->correspondences < settings.min_model_points / 2) return m;
+  // The base stays gravity-aligned: 4-DoF steps keep roll and pitch as the prediction had them.
+  m.T_world_base = StateToPose(PoseToState(fit->T_target_source.inverse()));
+  Agreement(f, view, &m);
+  m.covariance = Covariance(source, target, m.T_world_base.inverse());
+  m.fits = m.agreement >= settings.min_agreement;
+  out->icp_ms += lap.Lap();
+  return m;
+}
+
+// Coarse ICP from a grid of poses round each guess, on the depth points round all of them;
+// the poses holding the most depth points near the model are measured in full.
+std::optional<Iso3> Tracker::Impl::GridSearch(const DepthFrame& f, const std::vector<Iso3>& guesses,
+                                              TrackResult* out) const {
+  struct Candidate { double inliers; Iso3 T; };
+  std::vector<Candidate> candidates;
+  const double reach = settings.search_step_m * settings.search_steps + 0.15;
+  for (const Iso3& guess : guesses) {
+    LapTimer lap;
+    const ModelView view = RenderModel(f, guess);
+    if (view.points_base.size() < settings.min_model_points) continue;
+    Aabb crop = view.bounds_base.Grown(static_cast<float>(reach));
+    crop.min.z() = view.bounds_base.min.z() + static_cast<float>(settings.floor_clearance_m);
+    const PointCloud all = DepthPoints(f, view, guess, crop);
+    const PointCloud source = Thinned(all, settings.search_points);
+    out->model_ms += lap.Lap();
+    if (source.size() < settings.min_model_points) continue;
+    const TargetCloud target(view.points_base);
+    IcpSettings icp;
+    icp.yaw_only = true;
+    icp.max_iterations = 8;
+    const Vec4 g = PoseToState(guess);
+    for (int i = -settings.search_steps; i <= settings.search_steps; ++i)
+      for (int j = -settings.search_steps; j <= settings.search_steps; ++j)
+        for (int k = -settings.search_yaw_steps; k <= settings.search_yaw_steps; ++k) {
+          const Iso3 T = StateToPose(g + Vec4(i * settings.search_step_m, j * settings.search_step_m, 0,
+                                              k * settings.search_yaw_step_deg * kDeg));
+          auto fit = AlignCoarseToFine(source, target, T.inverse(), {0.15, 0.06}, icp);
+          ++out->hypotheses;
+          if (!fit.ok()) continue;
+          candidates.push_back({static_cast<double>(fit->correspondences), fit->T_target_source.inverse()});
+        }
+    out->icp_ms += lap.Lap();
+  }
+  std::sort(candidates.begin(), candidates.end(), [](const Candidate& a, const Candidate& b) { return a.inliers > b.inliers; });
+  std::optional<Iso3> best;
+  double best_agreement = -1;
+  for (std::size_t i = 0; i < std::min<std::size_t>(3, candidates.size()); ++i) {
+    const Measurement m = Measure(f, StateToPose(PoseToState(candidates[i].T)), {0.06, 0.025}, settings.icp_iterations, out);
+    if (Reacquires(m) && m.agreement > best_agreement)
+      best = m.T_world_base, best_agreement = m.agreement;
+  }
+  return best;
+}
+
+Tracker::Tracker(std::unique_ptr<Impl> impl) : impl_(std::move(impl)) {}
+Tracker::Tracker(Tracker&&) noexcept = default;
+Tracker& Tracker::operator=(Tracker&&) noexcept = default;
+Tracker::~Tracker() = default;
+
+Result<Tracker> Tracker::Create(std::shared_ptr<const RobotModel> robot, TrackerSettings settings) {
+  if (!robot) return Status::InvalidArgument("tracker: no robot");
+  if (settings.icp_distances_m.empty()) return Status::InvalidArgument("tracker: icp_distances_m is empty");
+  ARREF_ASSIGN_OR_RETURN(ModelCaster caster, ModelCaster::Create(*robot));
+  auto impl = std::make_unique<Impl>(Impl{robot, settings, std::move(caster), robot->ActuatedJoints(),
+                                          PoseFilter(settings.filter), {}, {}, {}, {}, 0});
+  return Tracker(std::move(impl));
+}
+
+void Tracker::Seed(const Iso3& T_world_base) {
+  impl_->seed = StateToPose(PoseToState(T_world_base));
+  impl_->filter.Clear();
+  impl_->last_T_world_base.reset();
+  impl_->last_T_world_camera.reset();
+}
+
+bool Tracker::seeded() const { return impl_->seed.has_value() || impl_->filter.initialised(); }
+const TrackerSettings& Tracker::settings() const { return impl_->settings; }
+
+Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues& joints) {
+  ARREF_RETURN_IF_ERROR(CheckDepthFrame(frame));
+  if (!seeded()) return Status::FailedPrecondition("tracker: no first guess of the robot's pose (Seed)");
+  Impl& I = *impl_;
+  const SteadyClock::time_point start = SteadyClock::now();
+  LapTimer lap;
+  TrackResult out;
+  ARREF_RETURN_IF_ERROR(I.PoseModel(joints).WithContext("tracker: posing the robot"));
+  out.model_ms += lap.Lap();
+  const TrackerSettings& s = I.settings;
+  const std::vector<double> wide = {0.15, 0.06, 0.025};
+  auto finish = [&](TrackState state) {
+    out.state = state;
+    if (I.filter.initialised()) {
+      out.T_world_base = StateToPose(I.filter.state());
+      out.covariance = I.filter.CovarianceAt(frame.time_s);
+    } else if (I.seed) {
+      out.T_world_base = *I.seed;
+    }
+    if (state == TrackState::kTracking || state == TrackState::kReacquired || state == TrackState::kJump) {
+      I.last_T_world_base = out.T_world_base;
+      I.last_T_world_camera = frame.T_world_camera;
+      I.lost_frames = 0;
+    }
+    I.previous_camera = {frame.time_s, frame.T_world_camera};
+    out.total_ms = MsSince(start);
+    return out;
+  };
+  auto restart = [&](const Measurement& m) {
+    I.filter.Reset(PoseToState(m.T_world_base), m.covariance, frame.time_s);
+    out.T_world_base_measured = m.T_world_base;
+    out.agreement = m.agreement;
+    return finish(TrackState::kReacquired);
+  };
+
+  const bool tracking = I.filter.initialised();
+  const Iso3 predicted = tracking ? StateToPose(I.filter.state()) : *I.seed;
+  ++out.hypotheses;
+  const Measurement m = I.Measure(frame, predicted, tracking ? s.icp_distances_m : wide, s.icp_iterations, &out);
+  out.model_points = m.model_points, out.depth_points = m.depth_points, out.agreement = m.agreement;
+  const bool jumped = I.CameraJumped(frame);
+  // Out of view where the filter says; after a camera jump, the world may have moved it.
+  if (m.model_points < s.min_model_points && !jumped) return finish(TrackState::kNoRobot);
+  if (m.fits) {
+    out.T_world_base_measured = m.T_world_base;
+    if (!tracking) {
+      if (!I.Reacquires(m)) return finish(TrackState::kLost);
+      I.seed.reset();
+      return restart(m);
+    }
+    const FilterVerdict v = I.filter.Update(PoseToState(m.T_world_base), m.covariance, frame.time_s);
+    return finish(v == FilterVerdict::kRejected ? TrackState::kRejected
+                  : v == FilterVerdict::kJump   ? TrackState::kJump
+                                                : TrackState::kTracking);
+  }
+  ++I.lost_frames;
+  // Lost. If the world moved under a steady head, the robot is where the camera last saw it;
+  // when the camera has not jumped, that guess is off by the head's motion, so it waits for a
+  // second lost frame like the grid search.
+  if (!jumped && I.lost_frames <= s.lost_frames_before_search) return finish(TrackState::kLost);
+  std::vector<Iso3> guesses = {predicted};
+  if (I.last_T_world_base && I.last_T_world_camera) {
+    const Iso3 relative =
+        StateToPose(PoseToState(frame.T_world_camera * I.last_T_world_camera->inverse() * *I.last_T_world_base));
+    ++out.hypotheses;
+    const Measurement r = I.Measure(frame, relative, wide, s.icp_iterations, &out);
+    if (I.Reacquires(r)) {
+      spdlog::info("tracker: re-referenced from the camera's view, {:.3f} m from the prediction{}",
+                   (r.T_world_base.translation() - predicted.translation()).norm(), jumped ? " (the camera jumped)" : "");
+      I.seed.reset();
+      return restart(r);
+    }
+    guesses.push_back(relative);
+  }
+  if (const auto found = I.GridSearch(frame, guesses, &out)) {
+    const Measurement refined = I.Measure(frame, *found, s.icp_distances_m, s.icp_iterations, &out);
+    if (I.Reacquires(refined)) {
+      spdlog::info("tracker: re-acquired by a search of {} poses", out.hypotheses);
+      I.seed.reset();
+      return restart(refined);
+    }
+  }
+  I.lost_frames = 0;  // the next search waits again
+  return finish(TrackState::kLost);
+}
+
+}  // namespace arref

@@ -1,0 +1,67 @@
+// Continuous referencing in the server (issue 28): per tracked robot, a joint-state history
+// on the server's clock, a Tracker and one worker thread. A frame waits in a single slot
+// while the one before it is processed; a newer frame replaces it (dropped, counted), so no
+// queue grows and the newest frame wins. Every processed frame becomes a TrackingUpdate for
+// the session that sent it and for the robot's subscribers. Thread-safe.
+#pragma once
+
+#include <condition_variable>
+#include <cstdint>
+#include <map>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <thread>
+
+#include "arref/base/frames.h"
+#include "arref/base/status.h"
+#include "arref/track/depth_frame.h"
+#include "arref/track/joint_history.h"
+#include "arref/track/tracker.h"
+
+namespace arref::server {
+
+class Session;
+class SubscriberHub;
+struct ServedRobot;
+
+struct ClockEstimate {
+  double offset_s = 0.0;  // server clock minus the sender's
+  double uncertainty_s = 0.0;
+  bool reported = false;
+};
+
+class TrackingService {
+ public:
+  explicit TrackingService(SubscriberHub& hub);
+  ~TrackingService();  // Shutdown()
+  // Stops and joins every worker (before the sessions' I/O goes away).
+  void Shutdown();
+
+  // Starts tracking `robot` with `session`'s frames from a first guess (replacing an earlier
+  // request of any session), or stops it.
+  Status Start(const ServedRobot& robot, const std::string& robot_id, const std::shared_ptr<Session>& session,
+               const Iso3& T_world_base_seed, FrameConvention result_frame);
+  void Stop(const std::string& robot_id, std::uint64_t session_id);
+  // A joint sample stamped on the sender's clock (complete values of the robot's actuated joints).
+  Status AddJoints(const std::string& robot_id, std::uint64_t sender_session, double sender_time_s,
+                   const JointValues& joints);
+  void ReportClock(std::uint64_t session_id, const ClockEstimate& clock);
+  // A frame stamped on the sender's clock. NOT_TRACKING-like FailedPrecondition when this
+  // session asked for no tracking of the robot.
+  Status SubmitFrame(const std::string& robot_id, std::uint64_t session_id, std::uint64_t frame_id, DepthFrame frame);
+  void RemoveSession(std::uint64_t session_id);
+  static double Now();  // the server's clock (steady, seconds), as Pong reports it
+
+ private:
+  struct Track;
+  ClockEstimate ClockOf(std::uint64_t session_id);
+  void Work(Track& track);
+  SubscriberHub& hub_;
+  std::mutex mu_;
+  std::map<std::string, std::unique_ptr<Track>> tracks_;
+  std::map<std::uint64_t, ClockEstimate> clocks_;
+};
+
+}  // namespace arref::server

@@ -1,0 +1,230 @@
+// Continuous referencing (issue 28): joint history, clock offset, pose filter, the posed
+// model's ray cast and the tracker on simulated streams with ground truth.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <memory>
+#include <numbers>
+
+#include "arref/fusion/raycaster.h"
+#include "arref/scene/metrics.h"
+#include "arref/scene/sampling.h"
+#include "arref/sim/track_simulator.h"
+#include "arref/track/clock_sync.h"
+#include "arref/track/joint_history.h"
+#include "arref/track/model_caster.h"
+#include "arref/track/pose_filter.h"
+#include "arref/track/tracker.h"
+#include "test_support.h"
+
+namespace arref {
+namespace {
+
+constexpr double kDeg = std::numbers::pi / 180.0;
+
+std::shared_ptr<const RobotModel> Builtin() {
+  auto robot = RobotModel::Load(testing::BuiltinRobotUrdf());
+  if (!robot.ok()) return nullptr;
+  return std::make_shared<const RobotModel>(std::move(robot).value());
+}
+
+TEST(JointHistory, InterpolatesHoldsAndRejectsBadSamples) {
+  JointHistory h({"a", "b"}, {.keep_s = 1.0, .max_samples = 100, .max_extrapolation_s = 0.05});
+  EXPECT_FALSE(h.At(0.0).ok());
+  ASSERT_TRUE(h.Add(1.0, std::vector<double>{0.0, 1.0}).ok());
+  ASSERT_TRUE(h.Add(1.1, std::vector<double>{0.2, 1.0}).ok());
+  ASSERT_OK_AND_ASSIGN(JointLookup mid, h.At(1.05));
+  EXPECT_NEAR(mid.joints.at("a"), 0.1, 1e-12);
+  EXPECT_EQ(mid.staleness_s, 0.0);
+  // Past the newest sample: the last velocity (2 rad/s) for at most 50 ms, then held.
+  ASSERT_OK_AND_ASSIGN(JointLookup late, h.At(1.3));
+  EXPECT_TRUE(late.extrapolated);
+  EXPECT_NEAR(late.staleness_s, 0.2, 1e-12);
+  EXPECT_NEAR(late.joints.at("a"), 0.3, 1e-12);
+  // Out of order, wrong size, non-finite: errors that leave the history as it was.
+  EXPECT_FALSE(h.Add(1.05, std::vector<double>{0.0, 0.0}).ok());
+  EXPECT_FALSE(h.Add(1.2, std::vector<double>{0.0}).ok());
+  EXPECT_FALSE(h.Add(1.2, std::vector<double>{NAN, 0.0}).ok());
+  EXPECT_FALSE(h.Add(1.2, JointValues{{"a", 0.0}}).ok());
+  EXPECT_EQ(h.size(), 2u);
+  // Older than keep_s behind the newest: dropped.
+  for (int i = 1; i <= 30; ++i) ASSERT_TRUE(h.Add(1.1 + 0.1 * i, std::vector<double>{0.0, 0.0}).ok());
+  EXPECT_LE(h.size(), 11u);
+  EXPECT_GE(h.size(), 10u);
+}
+
+TEST(ClockOffset, ShortestRoundTripGivesTheOffset) {
+  ClockOffsetEstimator est(16);
+  EXPECT_FALSE(est.Add({1.0, 2.0, 1.9, 1.2}).ok());  // reply sent before the request came
+  const double offset = 0.731;  // ours minus the peer's
+  const double delays[][2] = {{0.030, 0.002}, {0.004, 0.005}, {0.001, 0.0012}, {0.020, 0.001}};
+  double t = 10.0;
+  for (const auto& d : delays) {
+    ClockExchange e{t - offset, t + d[0], t + d[0] + 0.0001, t + d[0] + 0.0001 + d[1] - offset};
+    ASSERT_TRUE(est.Add(e).ok());
+    t += 1.0;
+  }
+  EXPECT_NEAR(est.offset_s(), offset, est.uncertainty_s() + 1e-9);
+  EXPECT_NEAR(est.uncertainty_s(), 0.5 * (0.001 + 0.0012), 1e-9);
+}
+
+TEST(PoseFilter, AveragesGatesAndFollowsAJump) {
+  PoseFilter f({.drift_m_per_sqrt_s = 0.001, .drift_rad_per_sqrt_s = 0.0005, .gate_chi2 = 18.5, .jump_after = 3,
+                .min_sigma_m = 0.0, .min_sigma_rad = 0.0});
+  std::mt19937_64 rng(3);
+  std::normal_distribution<double> n(0.0, 0.005);
+  const Vec4 truth(1.0, -2.0, 0.5, 3.1);  // near pi: the yaw's wrap is part of the test
+  const Mat4 R = Vec4(2.5e-5, 2.5e-5, 2.5e-5, 2.5e-5).asDiagonal();
+  double t = 0;
+  EXPECT_EQ(f.Update(truth + Vec4(n(rng), n(rng), n(rng), n(rng)), R, t), FilterVerdict::kInitialised);
+  for (int i = 0; i < 100; ++i) {
+    Vec4 z = truth + Vec4(n(rng), n(rng), n(rng), n(rng));
+    z(3) = WrapAngle(z(3));
+    EXPECT_EQ(f.Update(z, R, t += 0.033), FilterVerdict::kAccepted);
+  }
+  EXPECT_LT((f.state().head<3>() - truth.head<3>()).norm(), 0.003);  // better than one measurement's 8.7 mm
+  EXPECT_LT(std::abs(WrapAngle(f.state()(3) - truth(3))), 0.003);
+  EXPECT_LT(f.covariance()(0, 0), 2.5e-5);
+  // One wild measurement is rejected and changes nothing.
+  const Vec4 before = f.state();
+  EXPECT_EQ(f.Update(truth + Vec4(0.3, 0, 0, 0), R, t += 0.033), FilterVerdict::kRejected);
+  EXPECT_EQ(f.state(), before);
+  EXPECT_EQ(f.Update(truth, R, t += 0.033), FilterVerdict::kAccepted);
+  // A world jump: measurements agreeing with each other, far from the state.
+  const Vec4 jumped = truth + Vec4(0.4, 0.2, 0.0, 0.3);
+  EXPECT_EQ(f.Update(jumped, R, t += 0.033), FilterVerdict::kRejected);
+  EXPECT_EQ(f.Update(jumped, R, t += 0.033), FilterVerdict::kRejected);
+  EXPECT_EQ(f.Update(jumped, R, t += 0.033), FilterVerdict::kJump);
+  EXPECT_LT((f.state().head<3>() - jumped.head<3>()).norm(), 1e-9);
+  EXPECT_LT(std::abs(WrapAngle(f.state()(3) - jumped(3))), 1e-9);
+}
+
+TEST(ModelCaster, MatchesTheRayCastOfThePosedMesh) {
+  auto robot = Builtin();
+  ASSERT_TRUE(robot);
+  ASSERT_OK_AND_ASSIGN(ModelCaster caster, ModelCaster::Create(*robot));
+  JointValues joints;
+  for (const JointInfo& j : robot->ActuatedJoints()) joints[j.name] = 0.4;
+  ASSERT_TRUE(caster.Pose(*robot, joints).ok());
+  ASSERT_OK_AND_ASSIGN(TriangleMesh posed, robot->PosedMesh(joints));
+  ASSERT_OK_AND_ASSIGN(RayCaster reference, RayCaster::Create(posed));
+  const DepthIntrinsics c = DepthIntrinsics::FromFov(160, 144, 75.0);
+  PinholeCamera pinhole;
+  pinhole.width = c.width, pinhole.height = c.height, pinhole.focal_px = c.fx;
+  const Iso3 T_base_camera = LookAt(Vec3(1.8, 0.6, 1.4), Vec3(0, 0, 0.6));
+  const ModelView view = caster.Render(c, T_base_camera, 5.0, 1);
+  const RangeImage range = reference.Render(pinhole, T_base_camera, 5.0);
+  int hits = 0, same = 0;
+  for (int v = 0; v < c.height; ++v)
+    for (int u = 0; u < c.width; ++u) {
+      const std::size_t p = static_cast<std::size_t>(v) * c.width + u;
+      const double z_ref = range[p] > 0 ? range[p] / c.Ray(u, v).norm() : 0.0;
+      if (z_ref > 0) ++hits;
+      if ((z_ref > 0) == (view.z_depth[p] > 0) && std::abs(z_ref - view.z_depth[p]) < 1e-4) ++same;
+    }
+  EXPECT_GT(hits, 1000);
+  EXPECT_GE(same, c.width * c.height - 5);  // edge pixels may round either way
+  ASSERT_EQ(view.points_base.size(), static_cast<std::size_t>(hits) + (view.points_base.size() - hits));
+  // Normals face the camera and lie on the surface the ray hit.
+  for (std::size_t i = 0; i < view.points_base.size(); i += 50) {
+    const Vec3 p = view.points_base.points[i].cast<double>(), n = view.points_base.normals[i].cast<double>();
+    EXPECT_LT(n.dot(p - T_base_camera.translation()), 0.0);
+    EXPECT_NEAR(n.norm(), 1.0, 1e-4);
+  }
+  EXPECT_TRUE(posed.vertices.size() > 0);
+  EXPECT_TRUE(caster.bounds_base().Contains(BoundsOf(posed.vertices).min + Vec3f::Constant(1e-4f)));
+}
+
+// Runs the tracker over a simulated stream as the server does: joint states through the
+// history on the estimated clock offset, the tracker seeded off the truth.
+struct StreamOutcome {
+  int scored = 0, within_10mm = 0, frames = 0;
+  double recovery_s = -1;
+};
+
+StreamOutcome RunStream(std::shared_ptr<const RobotModel> robot, sim::TrackSimOptions options, std::uint64_t seed) {
+  StreamOutcome out;
+  auto simulator = sim::TrackSimulator::Create(robot, options, seed);
+  EXPECT_TRUE(simulator.ok()) << simulator.status().ToString();
+  if (!simulator.ok()) return out;
+  auto tracker = Tracker::Create(robot);
+  EXPECT_TRUE(tracker.ok()) << tracker.status().ToString();
+  if (!tracker.ok()) return out;
+  std::vector<std::string> names;
+  for (const JointInfo& j : robot->ActuatedJoints()) names.push_back(j.name);
+  JointHistory history(names);
+  ClockOffsetEstimator clock;
+  const PointCloud points = SampleSurface(*robot->PosedMesh({}), 2000, 1);
+  tracker->Seed(simulator->T_world_base_initial() * MakeYawPose(0.05, -0.04, 0.02, 4 * kDeg));
+  double last = -1.0, jump_time = simulator->jump_time_s();
+  bool recovered = false;
+  for (int i = 0; i < simulator->frame_count(); ++i) {
+    auto f = simulator->Next();
+    if (!f.ok()) break;
+    EXPECT_TRUE(clock.Add(simulator->RoundTrip(f->true_time_s)).ok());
+    for (const auto& s : simulator->JointSamples(last, f->true_time_s))
+      EXPECT_TRUE(history.Add(s.sender_time_s, s.joints).ok());
+    last = f->true_time_s;
+    auto joints = history.At(f->frame.time_s - clock.offset_s());
+    if (!joints.ok()) continue;
+    auto r = tracker->Process(f->frame, joints->joints);
+    EXPECT_TRUE(r.ok()) << r.status().ToString();
+    if (!r.ok()) break;
+    ++out.frames;
+    const double add = ComparePoses(r->T_world_base, f->T_world_base_true, points.points).add_m;
+    if (f->after_jump && !recovered && add < 0.010) {
+      recovered = true;
+      out.recovery_s = f->true_time_s - jump_time;
+    }
+    const bool settling = f->true_time_s < 1.0 || (f->after_jump && f->true_time_s < jump_time + 1.0);
+    if (settling) continue;
+    ++out.scored;
+    if (add < 0.010) ++out.within_10mm;
+  }
+  return out;
+}
+
+TEST(Tracker, FollowsAMovingRobotThroughAWorldJumpLongThrow) {
+  auto robot = Builtin();
+  ASSERT_TRUE(robot);
+  sim::TrackSimOptions options;
+  options.duration_s = 5.0;
+  options.jump_at_s = 2.5;
+  const StreamOutcome o = RunStream(robot, options, 11);
+  EXPECT_EQ(o.frames, 150);
+  ASSERT_GT(o.scored, 60);
+  EXPECT_GE(o.within_10mm, 0.9 * o.scored) << o.within_10mm << " of " << o.scored;
+  EXPECT_GE(o.recovery_s, 0.0);
+  EXPECT_LE(o.recovery_s, 1.0);
+}
+
+TEST(Tracker, UnwrapsAhatDepth) {
+  auto robot = Builtin();
+  ASSERT_TRUE(robot);
+  sim::TrackSimOptions options;
+  options.kind = sim::FrameKind::kAhat;
+  options.duration_s = 3.0;
+  options.jump_at_s = 100.0;  // none
+  const StreamOutcome o = RunStream(robot, options, 12);
+  ASSERT_GT(o.scored, 60);
+  EXPECT_GE(o.within_10mm, 0.9 * o.scored) << o.within_10mm << " of " << o.scored;
+}
+
+TEST(Tracker, RejectsBadFramesAndNeedsASeed) {
+  auto robot = Builtin();
+  ASSERT_TRUE(robot);
+  ASSERT_OK_AND_ASSIGN(Tracker tracker, Tracker::Create(robot));
+  DepthFrame f;
+  f.intrinsics = DepthIntrinsics::FromFov(32, 24, 75.0);
+  f.depth_mm.assign(32 * 24, 1000);
+  EXPECT_EQ(tracker.Process(f, {}).status().code(), StatusCode::kFailedPrecondition);
+  tracker.Seed(Iso3::Identity());
+  f.depth_mm.resize(10);
+  EXPECT_EQ(tracker.Process(f, {}).status().code(), StatusCode::kInvalidArgument);
+  f.depth_mm.assign(32 * 24, 1000);
+  f.intrinsics.fx = 0;
+  EXPECT_EQ(tracker.Process(f, {}).status().code(), StatusCode::kInvalidArgument);
+}
+
+}  // namespace
+}  // namespace arref

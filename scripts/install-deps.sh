@@ -5,12 +5,13 @@ set -euo pipefail
 
 PACKAGES=(
   cmake ninja-build g++ pkg-config ccache
-  libeigen3-dev libspdlog-dev liburdfdom-dev libassimp-dev libnanoflann-dev libtbb-dev
+  libeigen3-dev libspdlog-dev liburdfdom-dev libtinyxml-dev libassimp-dev libnanoflann-dev libtbb-dev
   libpcl-dev libembree-dev libopen3d-dev
   libboost-dev libprotobuf-dev protobuf-compiler libyaml-cpp-dev libsystemd-dev
   libcli11-dev nlohmann-json3-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   gnuplot-nox
+  clang libclang-rt-14-dev  # libFuzzer targets (scripts/fuzz.sh)
 )
 
 missing=()

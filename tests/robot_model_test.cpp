@@ -127,6 +127,36 @@ TEST(RobotModel, BadUrdfIsAClearError) {
   EXPECT_NE(missing.status().message().find("/nonexistent/robot.urdf"), std::string::npos);
 }
 
+// Joints must form a tree: urdfdom accepted a loop beside the tree (links without a pose) and
+// kept loops and links with two parents alive in memory (found by tests/fuzz/urdf_fuzz.cpp as
+// leaks). Both are errors naming the link.
+TEST(RobotModel, JointLoopsAndTwoParentsAreRejected) {
+  const std::string xml = R"(<robot name="loop">
+    <link name="base"/><link name="a"/><link name="b"/><link name="c"/>
+    <joint name="j0" type="fixed"><parent link="base"/><child link="c"/></joint>
+    <joint name="j1" type="fixed"><parent link="b"/><child link="a"/></joint>
+    <joint name="j2" type="fixed"><parent link="a"/><child link="b"/></joint>
+  </robot>)";
+  auto loop = RobotModel::FromString(xml, "/tmp");
+  ASSERT_FALSE(loop.ok());
+  EXPECT_EQ(loop.status().code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(loop.status().message().find("the joints above link 'a' form a loop"), std::string::npos)
+      << loop.status().message();
+
+  std::string two_parents = xml;
+  two_parents.replace(two_parents.find(R"(<child link="b"/>)"), 17, R"(<child link="c"/>)");
+  auto twice = RobotModel::FromString(two_parents, "/tmp");
+  ASSERT_FALSE(twice.ok());
+  EXPECT_NE(twice.status().message().find("link 'c' is the child of two joints"), std::string::npos)
+      << twice.status().message();
+
+  std::string tree = xml;  // the same links as a chain base - c - a - b
+  tree.replace(tree.find(R"(<parent link="b"/>)"), 18, R"(<parent link="c"/>)");
+  auto chain = RobotModel::FromString(tree, "/tmp");
+  ASSERT_TRUE(chain.ok()) << chain.status().message();
+  EXPECT_EQ(chain->root_link(), "base");
+}
+
 // A headset mesh saved and loaded again is the same mesh; PLY polygons are split into fans and a
 // face naming a vertex the file does not have is a clear error, never a crash (assimp's own
 // post-processing aborts on such faces).

@@ -1,6 +1,7 @@
 // libFuzzer target: the server's frame decoder (proto/frame_decoder) on an arbitrary byte
 // stream cut into arbitrary reads. Checks that chunking never changes what comes out: the
 // frames and the final state equal those of the whole stream decoded at once.
+#include <algorithm>
 #include <cstddef>
 #include <cstdint>
 #include <cstdlib>

@@ -16,6 +16,7 @@
 #include <thread>
 
 #include <boost/asio/local/stream_protocol.hpp>
+#include <google/protobuf/stubs/logging.h>
 #include <spdlog/spdlog.h>
 
 #include "frame_decoder.h"
@@ -36,7 +37,7 @@ struct Server {
   std::atomic<bool> shutting_down{false};
   arref::server::JobScheduler jobs{1, 16, [](arref::server::Job&) {
                                      JobOutcome out;
-                                     out.status = arref::Status::Unavailable("fuzz harness: no registration run");
+                                     out.status = arref::Status::FailedPrecondition("fuzz harness: no registration run");
                                      return out;
                                    }};
   int closed = 0;
@@ -45,11 +46,11 @@ struct Server {
 
   static Server& Get() {
     static Server* server = [] {
-      auto config = arref::server::LoadDefaultServerConfig();
-      if (!config.ok()) std::abort();
-      auto robots = arref::server::RobotRegistry::Load(config->robots, config->model_cache_entries);
-      if (!robots.ok()) std::abort();
-      return new Server(std::move(*config), std::move(*robots));
+      auto loaded = arref::server::LoadDefaultServerConfig();
+      if (!loaded.ok()) std::abort();
+      auto registry = arref::server::RobotRegistry::Load(loaded->robots, loaded->model_cache_entries);
+      if (!registry.ok()) std::abort();
+      return new Server(std::move(*loaded), std::move(*registry));
     }();
     return *server;
   }
@@ -86,6 +87,7 @@ void CheckReplies(const std::string& replies) {
 
 extern "C" int LLVMFuzzerInitialize(int*, char***) {
   spdlog::set_level(spdlog::level::off);
+  google::protobuf::SetLogHandler(nullptr);  // its complaint per string with invalid UTF-8
   Server::Get();
   return 0;
 }
@@ -97,8 +99,9 @@ extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size
   int fds[2];
   if (::socketpair(AF_UNIX, SOCK_STREAM, 0, fds) != 0) std::abort();
   std::string buffer, replies;
+  static net::io_context ioc;  // one for every input (its services are set up once), run empty
   {
-    net::io_context ioc;
+    ioc.restart();
     // The session speaks TCP; a Unix socket pair behaves the same for reads, writes and shutdown.
     tcp::socket session_side(ioc);
     session_side.assign(tcp::v4(), fds[0]);

@@ -27,8 +27,11 @@ FrameHeader DecodeFrameHeader(const std::uint8_t* data, std::size_t size, std::u
     value |= static_cast<std::uint64_t>(data[i] & 0x7f) << (7 * i);
     // Lengths above the maximum are refused as soon as the prefix shows it, even before it
     // ends, and before a prefix too long to be a varint: the verdict must not depend on how
-    // the stream was cut into reads (found by tests/fuzz/frame_decoder_fuzz.cpp).
+    // the stream was cut into reads (found by tests/fuzz/frame_decoder_fuzz.cpp). The length
+    // reported is as much of it as has arrived.
     if (value > max_body_bytes) {
+      for (std::size_t k = i; (data[k] & 0x80) != 0 && k + 1 < size && k + 1 < 10; ++k)
+        value |= static_cast<std::uint64_t>(data[k + 1] & 0x7f) << (7 * (k + 1));
       h.state = FrameHeader::State::kTooLarge;
       h.body_bytes = value;
       return h;

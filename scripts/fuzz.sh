@@ -4,9 +4,10 @@
 #       fuzzes one target (frame_decoder, server_config, urdf, mesh, session) for SECONDS on
 #       its working corpus build-fuzz/corpus/TARGET, seeded from tests/fuzz/corpus/TARGET;
 #       crashes, leaks and timeouts are written to build-fuzz/crashes/TARGET/.
-#   scripts/fuzz.sh --smoke [RUNS]
-#       what scripts/test.sh runs: every target over its seeds, then RUNS (default 20000)
-#       mutations each; fails on any crash, leak or sanitizer report.
+#   scripts/fuzz.sh --smoke [SECONDS]
+#       what scripts/test.sh runs: every target over its seeds and kept reproducers, then
+#       mutations for SECONDS (default 20) each, from a fixed seed; fails on any crash, leak,
+#       timeout or sanitizer report.
 #   scripts/fuzz.sh --build
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -39,22 +40,24 @@ case ${1:-} in
     build
     ;;
   --smoke)
-    runs=${2:-20000}
+    seconds=${2:-20}
     build
     for t in "${TARGETS[@]}"; do
       work=$(mktemp -d)
-      echo "arref: fuzz smoke: $t: seeds + $runs runs"
-      # -runs counts after the seeds; a crash reproducer goes to $dir/crashes/$t.
       mkdir -p "$dir/crashes/$t"
-      "$dir/tests/fuzz/${t}_fuzz" -runs="$runs" -seed=1 -max_len=65536 -timeout=25 -rss_limit_mb=4096 \
-        -artifact_prefix="$dir/crashes/$t/" -print_final_stats=1 "$work" "tests/fuzz/corpus/$t" 2>"$dir/smoke-$t.log" ||
+      echo "arref: fuzz smoke: $t: seeds, reproducers, then ${seconds} s of mutations"
+      # The working corpus is thrown away: the run starts from the repo's seeds every time.
+      "$dir/tests/fuzz/${t}_fuzz" -max_total_time="$seconds" -seed=1 -max_len=65536 -timeout=25 -rss_limit_mb=4096 \
+        -artifact_prefix="$dir/crashes/$t/" -print_final_stats=1 "$work" "tests/fuzz/corpus/$t" \
+        $( [[ -d tests/fuzz/regressions/$t ]] && echo "tests/fuzz/regressions/$t" ) 2>"$dir/smoke-$t.log" ||
         { tail -60 "$dir/smoke-$t.log" >&2; rm -rf "$work"; echo "arref: fuzz smoke failed: $t (log $dir/smoke-$t.log)" >&2; exit 1; }
-      grep -E "^stat::(number_of_executed_units|average_exec_per_sec)|cov: .*DONE|INITED" "$dir/smoke-$t.log" | tail -3
+      grep -E "^stat::(number_of_executed_units|average_exec_per_sec)" "$dir/smoke-$t.log" | tr '\n' ' '
+      grep -E "DONE|INITED" "$dir/smoke-$t.log" | tail -1
       rm -rf "$work"
     done
     ;;
   "" | -*)
-    echo "usage: scripts/fuzz.sh TARGET SECONDS [libFuzzer options] | --smoke [RUNS] | --build (targets: ${TARGETS[*]})" >&2
+    echo "usage: scripts/fuzz.sh TARGET SECONDS [libFuzzer options] | --smoke [SECONDS] | --build (targets: ${TARGETS[*]})" >&2
     exit 2
     ;;
   *)

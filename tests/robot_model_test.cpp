@@ -157,6 +157,30 @@ TEST(RobotModel, JointLoopsAndTwoParentsAreRejected) {
   EXPECT_EQ(chain->root_link(), "base");
 }
 
+// A mimic joint must follow an actuated joint: one that mimicked itself or another mimic joint
+// loaded, and completing its joint state then threw std::out_of_range (found by
+// tests/fuzz/urdf_fuzz.cpp; the server completes the defaults of every robot it loads).
+TEST(RobotModel, MimicOfAMimicJointIsRejected) {
+  const auto urdf = [](const std::string& mimic_target) {
+    return R"(<robot name="m"><link name="base"/><link name="a"/><link name="b"/>
+      <joint name="j1" type="revolute"><parent link="base"/><child link="a"/><axis xyz="0 0 1"/>
+        <limit lower="-1" upper="1" effort="1" velocity="1"/></joint>
+      <joint name="j2" type="revolute"><parent link="a"/><child link="b"/><axis xyz="0 0 1"/>
+        <limit lower="-1" upper="1" effort="1" velocity="1"/><mimic joint=")" + mimic_target + R"(" multiplier="2"/></joint>
+      </robot>)";
+  };
+  auto self = RobotModel::FromString(urdf("j2"), "/tmp");
+  ASSERT_FALSE(self.ok());
+  EXPECT_EQ(self.status().code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(self.status().message().find("joint 'j2' mimics 'j2', which is itself a mimic joint"), std::string::npos)
+      << self.status().message();
+  auto good = RobotModel::FromString(urdf("j1"), "/tmp");
+  ASSERT_TRUE(good.ok()) << good.status().message();
+  auto joints = good->CompleteJoints({{"j1", 0.25}});
+  ASSERT_TRUE(joints.ok()) << joints.status().message();
+  EXPECT_DOUBLE_EQ(joints->at("j2"), 0.5);
+}
+
 // A headset mesh saved and loaded again is the same mesh; PLY polygons are split into fans and a
 // face naming a vertex the file does not have is a clear error, never a crash (assimp's own
 // post-processing aborts on such faces).

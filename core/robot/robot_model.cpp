@@ -253,9 +253,17 @@ Result<RobotModel> RobotModel::FromString(const std::string& urdf_xml, const std
   if (!impl->urdf || !impl->urdf->getRoot()) return Status::IoError("not a valid URDF (urdfdom could not parse it)");
   ARREF_RETURN_IF_ERROR(impl->LoadGeometry(base_dir, options));
   impl->CollectJoints(*impl->urdf->getRoot());
-  for (const auto& joint : impl->joints)
-    if (!joint.mimic_of.empty() && !impl->joint_index.contains(joint.mimic_of))
+  for (const auto& joint : impl->joints) {
+    if (joint.mimic_of.empty()) continue;
+    const auto target = impl->joint_index.find(joint.mimic_of);
+    if (target == impl->joint_index.end())
       return Status::InvalidArgument("joint '" + joint.name + "' mimics unknown joint '" + joint.mimic_of + "'");
+    // CompleteJoints derives mimic joints from actuated ones only; a mimic of a mimic (itself
+    // included) had no value there and threw (found by tests/fuzz/urdf_fuzz.cpp).
+    if (!impl->joints[target->second].mimic_of.empty())
+      return Status::InvalidArgument("joint '" + joint.name + "' mimics '" + joint.mimic_of +
+                                     "', which is itself a mimic joint (mimic an actuated joint)");
+  }
   spdlog::debug("robot '{}': {} links with geometry, {} joints", impl->urdf->getName(), impl->link_meshes.size(),
                 impl->joints.size());
   return RobotModel(std::move(impl));

@@ -10,6 +10,7 @@
 #include <fstream>
 #include <string>
 
+#include <console_bridge/console.h>
 #include <spdlog/spdlog.h>
 
 #include "arref/robot/robot_model.h"
@@ -35,6 +36,7 @@ std::string MeshFolder() {
 
 extern "C" int LLVMFuzzerInitialize(int*, char***) {
   spdlog::set_level(spdlog::level::off);
+  console_bridge::setLogLevel(console_bridge::CONSOLE_BRIDGE_LOG_NONE);  // urdfdom's complaints
   return 0;
 }
 

@@ -213,6 +213,38 @@ TEST(MeshFile, PlyRoundTripPolygonsAndBadFaces) {
   EXPECT_NE(bad.status().message().find("vertex 9"), std::string::npos) << bad.status().ToString();
 }
 
+// Assimp 5.2's PLY reader never returned on this header (a misspelt element line, then STL-like
+// lines; found by tests/fuzz/mesh_fuzz.cpp): PLY headers are checked first and each fault is an
+// IO_ERROR naming the line, so a URDF or a headset mesh cannot hang a load.
+TEST(MeshFile, MalformedPlyHeaderIsAnErrorNotAHang) {
+  const testing::ScopedTempDir tmp;
+  const auto load = [&](const std::string& text) {
+    const std::string path = tmp.path() + "/m.ply";
+    std::ofstream(path, std::ios::binary | std::ios::trunc) << text;
+    return LoadMeshFile(path);
+  };
+  const std::string body = "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
+  const auto hang = load("ply\nformat ascii 1.0\nelement0 1\nouter loop\nvertex 0 0 0\nend_header\n" + body);
+  ASSERT_FALSE(hang.ok());
+  EXPECT_EQ(hang.status().code(), StatusCode::kIoError);
+  EXPECT_NE(hang.status().message().find("PLY header line 3 ('element0 1'): not a PLY header keyword"),
+            std::string::npos) << hang.status().message();
+
+  const std::string header = "ply\nformat ascii 1.0\ncomment by hand\nelement vertex 3\nproperty float x\n"
+                             "property float y\nproperty float z\nelement face 1\n";
+  const auto no_property = load(header + "end_header\n" + body);
+  ASSERT_FALSE(no_property.ok());
+  EXPECT_NE(no_property.status().message().find("the last element has no property"), std::string::npos)
+      << no_property.status().message();
+  const auto no_end = load(header + "property list uchar int vertex_indices\n");
+  ASSERT_FALSE(no_end.ok());
+  EXPECT_NE(no_end.status().message().find("no end_header"), std::string::npos) << no_end.status().message();
+
+  ASSERT_OK_AND_ASSIGN(const TriangleMesh fine,
+                       load(header + "property list uchar int vertex_indices\nend_header\n" + body));
+  EXPECT_EQ(fine.triangles.size(), 1u);
+}
+
 TEST(Kr5Package, Tool0AtZeroJoints) {
   ARREF_REQUIRE_SHARED();
   const RobotModel robot = LoadOrDie(Kr5PackageDir() + "/urdf/kr5_arc.urdf",

@@ -5,7 +5,7 @@ set -euo pipefail
 
 PACKAGES=(
   cmake ninja-build g++ pkg-config ccache
-  libeigen3-dev libspdlog-dev liburdfdom-dev libassimp-dev libnanoflann-dev libtbb-dev
+  libeigen3-dev libspdlog-dev liburdfdom-dev libtinyxml-dev libassimp-dev libnanoflann-dev libtbb-dev
   libpcl-dev libembree-dev libopen3d-dev
   libboost-dev libprotobuf-dev protobuf-compiler libyaml-cpp-dev libsystemd-dev
   libcli11-dev nlohmann-json3-dev
@@ -13,6 +13,7 @@ PACKAGES=(
   gnuplot-nox
   libstb-dev python3-protobuf python3-numpy python3-open3d python3-pytest
   ros-core python3-rospy python3-tf2-ros python3-yaml
+  clang libclang-rt-14-dev  # libFuzzer targets (scripts/fuzz.sh)
 )
 
 missing=()

@@ -124,6 +124,23 @@ TEST(WireFrameDecoder, MalformedVarintIsRejected) {
   EXPECT_EQ(d.Next().kind, Kind::kBadVarint);
 }
 
+// Found by tests/fuzz/frame_decoder_fuzz.cpp's oracle (chunking must not change the verdict): a
+// long unfinished prefix whose value passes the limit was kBadVarint when it arrived in one read
+// but kTooLarge when it arrived byte by byte.
+TEST(WireFrameDecoder, VerdictOnAnOverlongPrefixDoesNotDependOnTheReads) {
+  const std::string prefix(11, '\xff');  // passes a limit of 100 at its first byte, never ends
+  FrameDecoder whole(100);
+  whole.Append(prefix);
+  EXPECT_EQ(whole.Next().kind, Kind::kTooLarge);
+  FrameDecoder bytewise(100);
+  Kind last = Kind::kNeedMore;
+  for (char c : prefix) {
+    bytewise.Append(std::string(1, c));
+    last = bytewise.Next().kind;
+  }
+  EXPECT_EQ(last, Kind::kTooLarge);
+}
+
 TEST(WireFrameDecoder, EmptyBodyIsAFrame) {
   FrameDecoder d(100);
   d.Append(std::string(1, '\0'));

@@ -127,6 +127,60 @@ TEST(RobotModel, BadUrdfIsAClearError) {
   EXPECT_NE(missing.status().message().find("/nonexistent/robot.urdf"), std::string::npos);
 }
 
+// Joints must form a tree: urdfdom accepted a loop beside the tree (links without a pose) and
+// kept loops and links with two parents alive in memory (found by tests/fuzz/urdf_fuzz.cpp as
+// leaks). Both are errors naming the link.
+TEST(RobotModel, JointLoopsAndTwoParentsAreRejected) {
+  const std::string xml = R"(<robot name="loop">
+    <link name="base"/><link name="a"/><link name="b"/><link name="c"/>
+    <joint name="j0" type="fixed"><parent link="base"/><child link="c"/></joint>
+    <joint name="j1" type="fixed"><parent link="b"/><child link="a"/></joint>
+    <joint name="j2" type="fixed"><parent link="a"/><child link="b"/></joint>
+  </robot>)";
+  auto loop = RobotModel::FromString(xml, "/tmp");
+  ASSERT_FALSE(loop.ok());
+  EXPECT_EQ(loop.status().code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(loop.status().message().find("the joints above link 'a' form a loop"), std::string::npos)
+      << loop.status().message();
+
+  std::string two_parents = xml;
+  two_parents.replace(two_parents.find(R"(<child link="b"/>)"), 17, R"(<child link="c"/>)");
+  auto twice = RobotModel::FromString(two_parents, "/tmp");
+  ASSERT_FALSE(twice.ok());
+  EXPECT_NE(twice.status().message().find("link 'c' is the child of two joints"), std::string::npos)
+      << twice.status().message();
+
+  std::string tree = xml;  // the same links as a chain base - c - a - b
+  tree.replace(tree.find(R"(<parent link="b"/>)"), 18, R"(<parent link="c"/>)");
+  auto chain = RobotModel::FromString(tree, "/tmp");
+  ASSERT_TRUE(chain.ok()) << chain.status().message();
+  EXPECT_EQ(chain->root_link(), "base");
+}
+
+// A mimic joint must follow an actuated joint: one that mimicked itself or another mimic joint
+// loaded, and completing its joint state then threw std::out_of_range (found by
+// tests/fuzz/urdf_fuzz.cpp; the server completes the defaults of every robot it loads).
+TEST(RobotModel, MimicOfAMimicJointIsRejected) {
+  const auto urdf = [](const std::string& mimic_target) {
+    return R"(<robot name="m"><link name="base"/><link name="a"/><link name="b"/>
+      <joint name="j1" type="revolute"><parent link="base"/><child link="a"/><axis xyz="0 0 1"/>
+        <limit lower="-1" upper="1" effort="1" velocity="1"/></joint>
+      <joint name="j2" type="revolute"><parent link="a"/><child link="b"/><axis xyz="0 0 1"/>
+        <limit lower="-1" upper="1" effort="1" velocity="1"/><mimic joint=")" + mimic_target + R"(" multiplier="2"/></joint>
+      </robot>)";
+  };
+  auto self = RobotModel::FromString(urdf("j2"), "/tmp");
+  ASSERT_FALSE(self.ok());
+  EXPECT_EQ(self.status().code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(self.status().message().find("joint 'j2' mimics 'j2', which is itself a mimic joint"), std::string::npos)
+      << self.status().message();
+  auto good = RobotModel::FromString(urdf("j1"), "/tmp");
+  ASSERT_TRUE(good.ok()) << good.status().message();
+  auto joints = good->CompleteJoints({{"j1", 0.25}});
+  ASSERT_TRUE(joints.ok()) << joints.status().message();
+  EXPECT_DOUBLE_EQ(joints->at("j2"), 0.5);
+}
+
 // A headset mesh saved and loaded again is the same mesh; PLY polygons are split into fans and a
 // face naming a vertex the file does not have is a clear error, never a crash (assimp's own
 // post-processing aborts on such faces).
@@ -157,6 +211,38 @@ TEST(MeshFile, PlyRoundTripPolygonsAndBadFaces) {
   ASSERT_FALSE(bad.ok());
   EXPECT_EQ(bad.status().code(), StatusCode::kIoError);
   EXPECT_NE(bad.status().message().find("vertex 9"), std::string::npos) << bad.status().ToString();
+}
+
+// Assimp 5.2's PLY reader never returned on this header (a misspelt element line, then STL-like
+// lines; found by tests/fuzz/mesh_fuzz.cpp): PLY headers are checked first and each fault is an
+// IO_ERROR naming the line, so a URDF or a headset mesh cannot hang a load.
+TEST(MeshFile, MalformedPlyHeaderIsAnErrorNotAHang) {
+  const testing::ScopedTempDir tmp;
+  const auto load = [&](const std::string& text) {
+    const std::string path = tmp.path() + "/m.ply";
+    std::ofstream(path, std::ios::binary | std::ios::trunc) << text;
+    return LoadMeshFile(path);
+  };
+  const std::string body = "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
+  const auto hang = load("ply\nformat ascii 1.0\nelement0 1\nouter loop\nvertex 0 0 0\nend_header\n" + body);
+  ASSERT_FALSE(hang.ok());
+  EXPECT_EQ(hang.status().code(), StatusCode::kIoError);
+  EXPECT_NE(hang.status().message().find("PLY header line 3 ('element0 1'): not a PLY header keyword"),
+            std::string::npos) << hang.status().message();
+
+  const std::string header = "ply\nformat ascii 1.0\ncomment by hand\nelement vertex 3\nproperty float x\n"
+                             "property float y\nproperty float z\nelement face 1\n";
+  const auto no_property = load(header + "end_header\n" + body);
+  ASSERT_FALSE(no_property.ok());
+  EXPECT_NE(no_property.status().message().find("the last element has no property"), std::string::npos)
+      << no_property.status().message();
+  const auto no_end = load(header + "property list uchar int vertex_indices\n");
+  ASSERT_FALSE(no_end.ok());
+  EXPECT_NE(no_end.status().message().find("no end_header"), std::string::npos) << no_end.status().message();
+
+  ASSERT_OK_AND_ASSIGN(const TriangleMesh fine,
+                       load(header + "property list uchar int vertex_indices\nend_header\n" + body));
+  EXPECT_EQ(fine.triangles.size(), 1u);
 }
 
 TEST(Kr5Package, Tool0AtZeroJoints) {

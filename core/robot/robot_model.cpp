@@ -1,7 +1,9 @@
 // URDF robot model: urdfdom for parsing, assimp (mesh_loading.cpp) for link meshes.
 #include "arref/robot/robot_model.h"
 
+#include <fmt/format.h>
 #include <spdlog/spdlog.h>
+#include <tinyxml.h>
 #include <urdf_parser/urdf_parser.h>
 
 #include <algorithm>
@@ -82,6 +84,39 @@ JointType ToJointType(int urdf_type) {
   }
 }
 
+// URDF joints must form a tree. urdfdom links a parent to its children with owning pointers
+// before it checks the tree, so joints that loop (a -> b -> a), or a link with two parents, leave
+// a cycle it never frees, and a loop beside the tree is even accepted with links that have no
+// pose (found by tests/fuzz/urdf_fuzz.cpp, as leaks). This reads the joints first (tinyxml, as
+// urdfdom does) and refuses such files; everything else is left to urdfdom.
+Status CheckJointTree(const std::string& urdf_xml) {
+  TiXmlDocument doc;
+  doc.Parse(urdf_xml.c_str());
+  const TiXmlElement* robot = doc.Error() ? nullptr : doc.FirstChildElement("robot");
+  if (!robot) return Status::Ok();  // urdfdom says what is wrong
+  std::map<std::string, std::string> parent_of;  // child link -> parent link
+  for (const TiXmlElement* j = robot->FirstChildElement("joint"); j; j = j->NextSiblingElement("joint")) {
+    const TiXmlElement* parent = j->FirstChildElement("parent");
+    const TiXmlElement* child = j->FirstChildElement("child");
+    const char* parent_link = parent ? parent->Attribute("link") : nullptr;
+    const char* child_link = child ? child->Attribute("link") : nullptr;
+    if (!parent_link || !child_link) continue;
+    if (!parent_of.emplace(child_link, parent_link).second)
+      return Status::InvalidArgument(fmt::format("not a valid URDF: link '{}' is the child of two joints", child_link));
+  }
+  for (const auto& [link, parent] : parent_of) {
+    std::string at = parent;
+    for (std::size_t steps = 0; steps <= parent_of.size(); ++steps) {
+      if (at == link)
+        return Status::InvalidArgument(fmt::format("not a valid URDF: the joints above link '{}' form a loop", link));
+      const auto up = parent_of.find(at);
+      if (up == parent_of.end()) break;
+      at = up->second;
+    }
+  }
+  return Status::Ok();
+}
+
 }  // namespace
 
 struct RobotModel::Impl {
@@ -129,7 +164,10 @@ Result<TriangleMesh> RobotModel::Impl::GeometryMesh(const urdf::Geometry& geomet
 }
 
 Status RobotModel::Impl::LoadGeometry(const std::string& urdf_dir, const RobotLoadOptions& options) {
-  for (const auto& [name, link] : urdf->links_) {
+  for (const auto& entry : urdf->links_) {
+    // Not a structured binding: clang 14 (the fuzz build) cannot capture those in a lambda.
+    const std::string& name = entry.first;
+    const urdf::LinkSharedPtr& link = entry.second;
     TriangleMesh mesh;
     auto add = [&](const urdf::GeometrySharedPtr& geometry, const urdf::Pose& origin) -> Status {
       if (!geometry) return Status::Ok();
@@ -209,14 +247,23 @@ Result<RobotModel> RobotModel::Load(const std::string& urdf_path, const RobotLoa
 
 Result<RobotModel> RobotModel::FromString(const std::string& urdf_xml, const std::string& base_dir,
                                           const RobotLoadOptions& options) {
+  ARREF_RETURN_IF_ERROR(CheckJointTree(urdf_xml));
   auto impl = std::make_unique<Impl>();
   impl->urdf = urdf::parseURDF(urdf_xml);  // urdfdom reports details on its console log
   if (!impl->urdf || !impl->urdf->getRoot()) return Status::IoError("not a valid URDF (urdfdom could not parse it)");
   ARREF_RETURN_IF_ERROR(impl->LoadGeometry(base_dir, options));
   impl->CollectJoints(*impl->urdf->getRoot());
-  for (const auto& joint : impl->joints)
-    if (!joint.mimic_of.empty() && !impl->joint_index.contains(joint.mimic_of))
+  for (const auto& joint : impl->joints) {
+    if (joint.mimic_of.empty()) continue;
+    const auto target = impl->joint_index.find(joint.mimic_of);
+    if (target == impl->joint_index.end())
       return Status::InvalidArgument("joint '" + joint.name + "' mimics unknown joint '" + joint.mimic_of + "'");
+    // CompleteJoints derives mimic joints from actuated ones only; a mimic of a mimic (itself
+    // included) had no value there and threw (found by tests/fuzz/urdf_fuzz.cpp).
+    if (!impl->joints[target->second].mimic_of.empty())
+      return Status::InvalidArgument("joint '" + joint.name + "' mimics '" + joint.mimic_of +
+                                     "', which is itself a mimic joint (mimic an actuated joint)");
+  }
   spdlog::debug("robot '{}': {} links with geometry, {} joints", impl->urdf->getName(), impl->link_meshes.size(),
                 impl->joints.size());
   return RobotModel(std::move(impl));

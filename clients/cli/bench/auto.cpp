@@ -44,36 +44,10 @@ struct AutoRun {
   std::map<std::string, double> stage_ms;
 };
 
-struct RobotEntry {
-  std::string label;
-  RobotModel model;
-};
-
-Result<std::vector<RobotEntry>> Load(const RobustnessConfig& rc, bool keep_heldout) {
-  std::vector<RobotEntry> out;
-  for (const auto& urdf : rc.robots) {
-    std::string path = urdf;
-    if (path == "builtin") {
-      ARREF_ASSIGN_OR_RETURN(path, BuiltinRobotUrdf());
-    }
-    RobotLoadOptions load;
-    load.package_path = rc.package_path;
-    auto model = RobotModel::Load(path, load);
-    if (!model.ok()) return model.status().WithContext("--robots " + urdf);
-    const std::string name = model->name();
-    if (std::any_of(out.begin(), out.end(), [&](const RobotEntry& r) { return r.label == name; })) continue;
-    const bool heldout = !rc.heldout_robot.empty() &&
-                         (name.find(rc.heldout_robot) != std::string::npos || urdf.find(rc.heldout_robot) != std::string::npos);
-    if (heldout && !keep_heldout) continue;
-    out.push_back({name, std::move(*model)});
-  }
-  if (out.empty()) return Status::InvalidArgument("auto: no robot left to measure (--robots, --heldout-robot)");
-  return out;
-}
 
 // One room, every method: simulate, build the robot side once (untimed, as the server caches it),
 // then each method over the whole map against the room's ground truth.
-std::vector<AutoRun> RunRoom(const RobotEntry& robot, const RobotEntry* other, sim::Mesher mesher, int arms, int index,
+std::vector<AutoRun> RunRoom(const BenchRobot& robot, const BenchRobot* other, sim::Mesher mesher, int arms, int index,
                              std::uint64_t seed, const std::vector<std::string>& methods) {
   AutoRun label;
   label.robot = robot.label, label.mesher = sim::MesherName(mesher), label.arms = arms, label.room = index;
@@ -89,7 +63,7 @@ std::vector<AutoRun> RunRoom(const RobotEntry& robot, const RobotEntry* other, s
   };
   sim::RoomOptions options;
   options.arms = arms, options.other_arm = other != nullptr, options.mesher = mesher;
-  auto room = sim::SimulateRoom({&robot.model, other ? &other->model : nullptr}, options, seed);
+  auto room = sim::SimulateRoom({robot.model.get(), other ? other->model.get() : nullptr}, options, seed);
   if (!room.ok()) return fail_all(room.status());
   SpatialMesh map;
   for (auto& s : room->surfaces)
@@ -100,7 +74,7 @@ std::vector<AutoRun> RunRoom(const RobotEntry& robot, const RobotEntry* other, s
   for (const auto& a : room->arms)
     if (a.requested) requested.push_back(&a);
   const RegistrationOptions defaults;
-  auto side = RobotSide::Create(robot.model, requested.empty() ? JointValues{} : requested.front()->joints,
+  auto side = RobotSide::Create(*robot.model, requested.empty() ? JointValues{} : requested.front()->joints,
                                 defaults.model_samples, defaults.sample_seed);
   if (!side.ok()) return fail_all(side.status());
   if (auto warm = (*side)->Expected(MedianEdgeLength(scene)); !warm.ok()) return fail_all(warm.status());
@@ -233,7 +207,7 @@ Status Write(const Config& config, const std::vector<AutoRun>& runs, const std::
 Status AutoExperiment(const Config& config, Tables* tables) {
   const RobustnessConfig& rc = config.robustness;
   const bool heldout = rc.split == "heldout";
-  ARREF_ASSIGN_OR_RETURN(const std::vector<RobotEntry> robots, Load(rc, heldout));
+  ARREF_ASSIGN_OR_RETURN(const std::vector<BenchRobot> robots, LoadBenchRobots(rc, heldout, "auto"));
   std::vector<sim::Mesher> meshers;
   for (const auto& name : rc.meshers) {
     ARREF_ASSIGN_OR_RETURN(const sim::Mesher m, sim::ParseMesher(name));
@@ -264,7 +238,7 @@ Status AutoExperiment(const Config& config, Tables* tables) {
   auto one = [&](std::size_t t) {
     const Task& k = tasks[t];
     // Every other room holds an arm of the next robot too, when there is another.
-    const RobotEntry* other = robots.size() > 1 && k.index % 2 == 1 ? &robots[(k.robot + 1) % robots.size()] : nullptr;
+    const BenchRobot* other = robots.size() > 1 && k.index % 2 == 1 ? &robots[(k.robot + 1) % robots.size()] : nullptr;
     results[t] = RunRoom(robots[k.robot], other, k.mesher, k.arms, k.index, k.seed, config.auto_methods);
   };
   if (config.jobs <= 1) {

@@ -159,6 +159,14 @@ struct Tables {
 Status SweepExperiment(const RobotModel& robot, const Config& config, Tables* tables);      // Tables I, II
 Status PerturbExperiment(const RobotModel& robot, const Config& config, Tables* tables);    // Table III + plots
 Status ScenesExperiment(const RobotModel& robot, const Config& config, Tables* tables);     // methods x scene kinds
+// The robots of --robots (`builtin` for the built-in one), each once; the development split
+// (keep_heldout false) leaves --heldout-robot out. `experiment` names the caller in messages.
+struct BenchRobot {
+  std::string label;  // the robot's name
+  std::string urdf;
+  std::shared_ptr<const RobotModel> model;
+};
+Result<std::vector<BenchRobot>> LoadBenchRobots(const RobustnessConfig& rc, bool keep_heldout, const std::string& experiment);
 Status RobustnessExperiment(const Config& config, Tables* tables);  // robots x meshers x seed families
 Status AutoExperiment(const Config& config, Tables* tables);        // seedless, whole rooms (auto.cpp)
 Status TrackExperiment(const Config& config, Tables* tables);       // robots x frame kinds, to track.md

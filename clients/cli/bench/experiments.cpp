@@ -172,20 +172,14 @@ std::uint64_t Mix(std::uint64_t x) {  // SplitMix64: separate streams from one s
   return x ^ (x >> 31);
 }
 
-struct BenchRobot {
-  std::string label;  // the robot's name
-  std::string urdf;
-  RobotModel model;
-};
+}  // namespace
 
-Result<std::vector<BenchRobot>> LoadRobots(const RobustnessConfig& rc, bool keep_heldout) {
+Result<std::vector<BenchRobot>> LoadBenchRobots(const RobustnessConfig& rc, bool keep_heldout, const std::string& experiment) {
   std::vector<BenchRobot> robots;
   for (const auto& urdf : rc.robots) {
     std::string path = urdf;
     if (path == "builtin") {
-      auto builtin = BuiltinRobotUrdf();
-      if (!builtin.ok()) return builtin.status();
-      path = *builtin;
+      ARREF_ASSIGN_OR_RETURN(path, BuiltinRobotUrdf());
     }
     RobotLoadOptions load;
     load.package_path = rc.package_path;
@@ -197,21 +191,20 @@ Result<std::vector<BenchRobot>> LoadRobots(const RobustnessConfig& rc, bool keep
     const bool heldout = !rc.heldout_robot.empty() &&
                          (name.find(rc.heldout_robot) != std::string::npos || urdf.find(rc.heldout_robot) != std::string::npos);
     if (heldout && !keep_heldout) {
-      spdlog::info("bench: robustness, dev split: {} is held out", name);
+      spdlog::info("bench: {}, dev split: {} is held out", experiment, name);
       continue;
     }
-    robots.push_back({name, urdf, std::move(*model)});
+    robots.push_back({name, urdf, std::make_shared<const RobotModel>(std::move(*model))});
   }
-  if (robots.empty()) return Status::InvalidArgument("robustness: no robot left to measure (--robots, --heldout-robot)");
+  if (robots.empty())
+    return Status::InvalidArgument(experiment + ": no robot left to measure (--robots, --heldout-robot)");
   return robots;
 }
-
-}  // namespace
 
 Status RobustnessExperiment(const Config& config, Tables* tables) {
   const RobustnessConfig& rc = config.robustness;
   const bool heldout = rc.split == "heldout";
-  auto robots = LoadRobots(rc, heldout);
+  auto robots = LoadBenchRobots(rc, heldout, "robustness");
   if (!robots.ok()) return robots.status();
   std::vector<sim::Mesher> meshers;
   for (const auto& name : rc.meshers) {
@@ -241,7 +234,7 @@ Status RobustnessExperiment(const Config& config, Tables* tables) {
       const std::uint64_t cell_seed = Mix(stream ^ Mix(std::hash<std::string>{}(robot.label)) ^ Mix(static_cast<std::uint64_t>(i) + 1));
       std::shared_ptr<const RobotSide> side;
       for (sim::Mesher mesher : meshers) {
-        auto cell = MakeCell(robot.model, kind, i, cell_seed, mesher, side);
+        auto cell = MakeCell(*robot.model, kind, i, cell_seed, mesher, side);
         if (!cell.ok()) return cell.status();
         side = cell->robot;
         cells.push_back(std::move(*cell));

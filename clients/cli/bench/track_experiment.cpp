@@ -170,36 +170,6 @@ Result<StreamStats> RunStream(const StreamSpec& spec) {
   return s;
 }
 
-struct RobotEntry {
-  std::string label, urdf;
-  std::shared_ptr<const RobotModel> model;
-};
-
-Result<std::vector<RobotEntry>> LoadTrackRobots(const Config& config, bool keep_heldout) {
-  const RobustnessConfig& rc = config.robustness;
-  std::vector<RobotEntry> robots;
-  for (const auto& urdf : rc.robots) {
-    std::string path = urdf;
-    if (path == "builtin") {
-      ARREF_ASSIGN_OR_RETURN(path, BuiltinRobotUrdf());
-    }
-    RobotLoadOptions load;
-    load.package_path = rc.package_path;
-    auto model = RobotModel::Load(path, load);
-    if (!model.ok()) return model.status().WithContext("--robots " + urdf);
-    const std::string name = model->name();
-    if (std::any_of(robots.begin(), robots.end(), [&](const RobotEntry& r) { return r.label == name; })) continue;
-    const bool heldout = !rc.heldout_robot.empty() &&
-                         (name.find(rc.heldout_robot) != std::string::npos || urdf.find(rc.heldout_robot) != std::string::npos);
-    if (heldout && !keep_heldout) {
-      spdlog::info("bench: track, dev split: {} is held out", name);
-      continue;
-    }
-    robots.push_back({name, urdf, std::make_shared<const RobotModel>(std::move(*model))});
-  }
-  if (robots.empty()) return Status::InvalidArgument("track: no robot left to measure (--robots, --heldout-robot)");
-  return robots;
-}
 
 std::string Pct(int a, int b) { return b ? fmt::format("{:.1f}", 100.0 * a / b) : "-"; }
 std::string Num(double x, const char* f = "{:.1f}") { return std::isnan(x) ? "-" : fmt::format(fmt::runtime(f), x); }
@@ -209,7 +179,7 @@ std::string Num(double x, const char* f = "{:.1f}") { return std::isnan(x) ? "-"
 Status TrackExperiment(const Config& config, Tables* tables) {
   const TrackConfig& tc = config.track;
   const bool heldout = config.robustness.split == "heldout";
-  ARREF_ASSIGN_OR_RETURN(const std::vector<RobotEntry> robots, LoadTrackRobots(config, heldout));
+  ARREF_ASSIGN_OR_RETURN(const std::vector<BenchRobot> robots, LoadBenchRobots(config.robustness, heldout, "track"));
   // The held-out split draws from a stream of its own: none of its streams was seen while developing.
   const std::uint64_t stream = heldout ? MixSeed(config.rng_seed ^ 0x48454C44u) : MixSeed(config.rng_seed ^ 0x444556u);
   const std::string path = config.out_dir + "/track.md";
@@ -227,7 +197,7 @@ Status TrackExperiment(const Config& config, Tables* tables) {
   md << "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   for (const std::string& kind_name : tc.kinds) {
     ARREF_ASSIGN_OR_RETURN(const sim::FrameKind kind, sim::ParseFrameKind(kind_name));
-    for (const RobotEntry& robot : robots) {
+    for (const BenchRobot& robot : robots) {
       StreamStats all;
       double worst_recovery = -1;
       bool unrecovered = false;

@@ -98,8 +98,10 @@ def test_errors_are_typed_and_carry_the_code(server, cell_ros):
             c.sync()
         assert e.value.code == pb.ERROR_CODE_BAD_SURFACE and e.value.surface_id == 41
         c.upload_mesh(cell_ros.mesh["ply"])
+        # with no seed the default method searches the whole map; a method that needs a seed
+        # says so
         with pytest.raises(errors.NoSeed) as e:
-            c.register("kr5")
+            c.register("kr5", method="arref-icp")
         assert e.value.code_name == "ERROR_CODE_NO_SEED"
         with pytest.raises(errors.UnknownRobot) as e:
             c.register("no-such-robot", seed=cell_ros.seed(0))

@@ -1,4 +1,4 @@
-// Continuous referencing in the server (issue 28): per tracked robot, a joint-state history
+// Continuous referencing in the server: per tracked robot, a joint-state history
 // on the server's clock, a Tracker and one worker thread. A frame waits in a single slot
 // while the one before it is processed; a newer frame replaces it (dropped, counted), so no
 // queue grows and the newest frame wins. Every processed frame becomes a TrackingUpdate for

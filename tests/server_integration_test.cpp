@@ -809,7 +809,7 @@ TEST(ServerIntegration, GracefulShutdownAnswersEveryAcceptedRequest) {
   EXPECT_GE(cancelled, 1) << "queued jobs are cancelled";
 }
 
-// ---------------------------------------------------------------- hardening (issue 30)
+// ---------------------------------------------------------------- hardening
 
 long StatusKb(pid_t pid, const std::string& key) {
   std::ifstream in("/proc/" + std::to_string(pid) + "/status");

@@ -1,4 +1,4 @@
-// Continuous referencing (issue 28): joint history, clock offset, pose filter, the posed
+// Continuous referencing: joint history, clock offset, pose filter, the posed
 // model's ray cast and the tracker on simulated streams with ground truth.
 #include <gtest/gtest.h>
 

@@ -1,4 +1,4 @@
-// A tracking headset and a robot-side joint sender against arref-server (issue 28): the
+// A tracking headset and a robot-side joint sender against arref-server: the
 // headset streams simulated depth frames (sim/track_simulator.h) in real time, the sender
 // streams joint states on its own clock, both estimate their clock's offset from Ping/Pong
 // round trips and report it; the TrackingUpdates are compared with the simulator's truth.

@@ -16,7 +16,7 @@ namespace arref::sim {
 namespace {
 
 constexpr double kDeg = std::numbers::pi / 180.0;
-constexpr double kAhatWrapM = 1.0;     // AHAT's phase wraps about here (domain notes: "beyond about 1 m")
+constexpr double kAhatWrapM = 1.0;     // AHAT's phase wraps about here (HoloLens 2 AHAT depth wraps beyond about 1 m)
 constexpr double kAhatMaxRangeM = 3.0;
 
 // Independent random streams of one simulation: adding draws to one leaves the others alone.

@@ -91,8 +91,8 @@ void CheckReplies(const std::string& replies) {
     arref::wire::pb::ServerMessage m;
     if (!m.ParseFromArray(f.body.data(), static_cast<int>(f.body.size()))) std::abort();
   }
-  // A trailing partial frame is not checked: a session that reads EOF closes at once and may
-  // cut a reply short (issue 30: results are not yet delivered to a half-closed client).
+  // A trailing partial frame is not checked: after EOF the session closes once its results are
+  // out, and a reply other than a Result may be cut short.
 }
 
 }  // namespace

@@ -46,7 +46,7 @@ struct RobustnessConfig {
   int seeds = 2;  // per seed family and cell
 };
 
-// The tracking experiment (issue 28): robots as RobustnessConfig's, with its split.
+// The tracking experiment: robots as RobustnessConfig's, with its split.
 struct TrackConfig {
   std::vector<std::string> kinds = {"long-throw", "ahat"};
   int streams = 2;            // per robot and frame kind

@@ -1,4 +1,4 @@
-// `arref bench --only track` (issue 28): the tracker on simulated streams of every robot and
+// `arref bench --only track`: the tracker on simulated streams of every robot and
 // frame kind, against ground truth, with a per-frame baseline measured in the same run (the
 // one-shot way: the posed model sampled afresh and PCL ICP, on a subset of frames), the
 // recovery after the world jump, and one long stream for drift and memory.

@@ -1,4 +1,4 @@
-// A simulated tracking stream with ground truth (issue 28): a robot moving along joint-space
+// A simulated tracking stream with ground truth: a robot moving along joint-space
 // splines, a wearer walking round it, depth frames like HoloLens 2's long-throw or AHAT
 // camera, a joint-state sender on its own clock, head-tracking drift and one re-localisation
 // jump of the headset's world. Frames come one at a time (a 10-minute stream never sits in

@@ -1,4 +1,4 @@
-// Continuous referencing of a moving robot from depth frames (issue 28): per frame, the exact
+// Continuous referencing of a moving robot from depth frames: per frame, the exact
 // model posed at the frame's joints is ray cast from the frame's camera at the filtered pose,
 // the depth pixels around it are registered to it (point-to-plane ICP, 4 DoF about gravity),
 // and the measurement goes through a gated Kalman filter. When the fit is lost (a world jump,

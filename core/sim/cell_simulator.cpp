@@ -21,6 +21,9 @@
 namespace arref::sim {
 namespace {
 
+using detail::kNoiseSigmasInBand;
+using detail::kSecondsPerView;
+
 constexpr double kDeg = std::numbers::pi / 180.0;
 // Surface area per cubic metre of a mapped cell (floor, walls, robot, furniture in the 2 m
 // sphere). Surface nets emits ~2 triangles per voxel face of surface, so a density of
@@ -28,9 +31,6 @@ constexpr double kDeg = std::numbers::pi / 180.0;
 constexpr double kSurfacePerVolume = 0.6;
 constexpr double kMinVoxel = 0.01;  // finer gains nothing at 8 mm depth noise and costs memory
 constexpr double kMaxVoxel = 0.05;
-constexpr double kNoiseSigmasInBand = 6.0;
-// Long-throw depth runs at a few frames per second: time between the path's views.
-constexpr double kSecondsPerView = 0.5;
 
 using Clock = std::chrono::steady_clock;
 double SecondsSince(Clock::time_point t0) { return std::chrono::duration<double>(Clock::now() - t0).count(); }
@@ -337,24 +337,8 @@ Iso3 SurfaceError(const DeviceVariation& device, const Vec3& centre, std::mt1993
 
 namespace {
 
+using detail::ErrorOfCube;
 using detail::SurfaceError;
-
-// The surface cube at `corner` (world, a multiple of the surface size): which of the mesher's
-// update times meshed it, and the head-pose error it was moved by then. One draw per cube, so
-// the mesher and the measure of what it did to the robot (MeshDisplacementAdd) agree.
-struct CubeError {
-  int time_index = 0;
-  Iso3 T_moved_true = Iso3::Identity();
-};
-CubeError ErrorOfCube(const DeviceVariation& device, const Vec3& corner, double size, int updates, std::uint64_t rng_seed) {
-  std::uint64_t key = 0;
-  for (int a = 0; a < 3; ++a) key = SplitMix64(key ^ static_cast<std::uint64_t>(std::llround(corner[a] / size) + (1 << 20)));
-  auto surface_rng = Stream(rng_seed ^ key, 12);
-  CubeError out;
-  out.time_index = static_cast<int>(surface_rng() % static_cast<std::uint64_t>(updates));
-  out.T_moved_true = SurfaceError(device, corner + Vec3::Constant(size / 2), surface_rng);
-  return out;
-}
 
 // How far the mesh itself puts the robot from where it stands: the ADD (mean displacement of the
 // robot's surface points) of the rigid motion that best maps the robot's true surface onto where
@@ -390,16 +374,63 @@ bool HasArea(const TriangleMesh& mesh) {
   return false;
 }
 
+
+CubeError ErrorOfCube(const DeviceVariation& device, const Vec3& corner, double size, int updates, std::uint64_t rng_seed) {
+  std::uint64_t key = 0;
+  for (int a = 0; a < 3; ++a) key = SplitMix64(key ^ static_cast<std::uint64_t>(std::llround(corner[a] / size) + (1 << 20)));
+  auto surface_rng = Stream(rng_seed ^ key, 12);
+  CubeError out;
+  out.time_index = static_cast<int>(surface_rng() % static_cast<std::uint64_t>(updates));
+  out.T_moved_true = SurfaceError(device, corner + Vec3::Constant(size / 2), surface_rng);
+  return out;
+}
+
+Result<std::vector<Surface>> MeshLikeTheDevice(const PinholeCamera& camera, const std::vector<Iso3>& T_world_camera,
+                                               const std::vector<RangeImage>& ranges, const DeviceVariation& device,
+                                               double max_range_m, std::uint64_t rng_seed) {
+  // Update times spread over the walk's last third: the last one after the last view.
+  const int n = static_cast<int>(ranges.size()), updates = std::max(1, device.surface_updates);
+  std::vector<int> snapshot_after;
+  for (int k = 0; k < updates; ++k)
+    snapshot_after.push_back(static_cast<int>(std::floor((n - 1) * (2.0 / 3.0 + (k + 1) / (3.0 * updates)))));
+  const Open3dFusion fusion{.voxel_m = device.voxel_m,
+                            .truncation_m = std::max(3.0 * device.voxel_m, kNoiseSigmasInBand * device.depth_noise_m),
+                            .max_range_m = max_range_m};
+  ARREF_ASSIGN_OR_RETURN(const auto meshes, FuseWithOpen3d(camera, T_world_camera, ranges, fusion, snapshot_after));
+  const double size = device.surface_size_m;
+  const int target = std::max(1, static_cast<int>(std::lround(device.triangles_per_m3 * size * size * size)));
+  const float q = static_cast<float>(device.quantisation_m);
+  std::vector<Surface> surfaces;
+  for (int k = 0; k < updates; ++k) {
+    const double time_s = (snapshot_after[static_cast<std::size_t>(k)] + 1) * kSecondsPerView;
+    for (Surface& s : SplitIntoSurfaces(meshes[static_cast<std::size_t>(k)], size, time_s)) {
+      const Vec3 corner = s.T_world_surface.translation();
+      const CubeError cube = ErrorOfCube(device, corner, size, updates, rng_seed);
+      if (cube.time_index != k) continue;  // meshed at another time
+      ARREF_ASSIGN_OR_RETURN(s.mesh, DecimateWithOpen3d(s.mesh, target));
+      for (Vec3f& v : s.mesh.vertices) {
+        v = ((cube.T_moved_true * (corner + v.cast<double>())) - corner).cast<float>();
+        if (q > 0) v = (v / q).array().round().matrix() * q;
+      }
+      if (!HasArea(s.mesh)) continue;
+      s.id = surfaces.size() + 1;
+      surfaces.push_back(std::move(s));
+    }
+  }
+  spdlog::debug("sim: open3d mesher: {} views, voxel {:.3f} m, {} surfaces of {:.2f} m at {} times", n, device.voxel_m,
+                surfaces.size(), size, updates);
+  return surfaces;
+}
+
 }  // namespace detail
 
 namespace {
 
 using detail::HasArea;
+using detail::MeshLikeTheDevice;
 
-// The device's mesher: ray cast like ScanAndFuse, but depth that misses dark patches, fused by
-// Open3D, and cut into surface cubes that are each meshed at their own time (the spatial mapper
-// re-meshes a surface when it changes, Microsoft's "Spatial mapping" guide), moved by the head
-// pose error of that time, decimated to the device's density on their own and quantised.
+// The device's mesher: ray cast like ScanAndFuse, but depth that misses dark patches, then
+// meshed as the device meshes (MeshLikeTheDevice).
 Result<std::vector<Surface>> ScanAndMeshOpen3d(const CellScene& scene, const RobotModel& robot, const SimOptions& options,
                                                const DeviceVariation& device, const Iso3& T_world_cell, std::uint64_t rng_seed,
                                                std::mt19937_64& rng, std::vector<Vec3>* head_path_world) {
@@ -419,42 +450,7 @@ Result<std::vector<Surface>> ScanAndMeshOpen3d(const CellScene& scene, const Rob
     T_world_camera.push_back(T_world_cell * views[i].T_cell_camera_believed);
     head_path_world->push_back(T_world_camera.back().translation());
   }
-  // Update times spread over the walk's last third: the last one after the last view.
-  const int n = static_cast<int>(views.size()), updates = std::max(1, device.surface_updates);
-  std::vector<int> snapshot_after;
-  for (int k = 0; k < updates; ++k)
-    snapshot_after.push_back(static_cast<int>(std::floor((n - 1) * (2.0 / 3.0 + (k + 1) / (3.0 * updates)))));
-  const Open3dFusion fusion{.voxel_m = device.voxel_m,
-                            .truncation_m = std::max(3.0 * device.voxel_m, kNoiseSigmasInBand * device.depth_noise_m),
-                            .max_range_m = scan.max_range_m};
-  auto meshes = FuseWithOpen3d(camera, T_world_camera, ranges, fusion, snapshot_after);
-  if (!meshes.ok()) return meshes.status();
-  const double size = device.surface_size_m;
-  const int target = std::max(1, static_cast<int>(std::lround(device.triangles_per_m3 * size * size * size)));
-  std::vector<Surface> surfaces;
-  for (int k = 0; k < updates; ++k) {
-    const double time_s = (snapshot_after[static_cast<std::size_t>(k)] + 1) * kSecondsPerView;
-    for (Surface& s : SplitIntoSurfaces((*meshes)[static_cast<std::size_t>(k)], size, time_s)) {
-      const Vec3 corner = s.T_world_surface.translation();
-      const CubeError cube = ErrorOfCube(device, corner, size, updates, rng_seed);
-      if (cube.time_index != k) continue;  // meshed at another time
-      const Iso3& error = cube.T_moved_true;
-      auto decimated = DecimateWithOpen3d(s.mesh, target);
-      if (!decimated.ok()) return decimated.status();
-      s.mesh = std::move(*decimated);
-      const float q = static_cast<float>(device.quantisation_m);
-      for (Vec3f& v : s.mesh.vertices) {
-        v = ((error * (corner + v.cast<double>())) - corner).cast<float>();
-        if (q > 0) v = (v / q).array().round().matrix() * q;
-      }
-      if (!HasArea(s.mesh)) continue;
-      s.id = surfaces.size() + 1;
-      surfaces.push_back(std::move(s));
-    }
-  }
-  spdlog::debug("sim: open3d mesher: {} views, voxel {:.3f} m, {} surfaces of {:.2f} m at {} times", n, device.voxel_m,
-                surfaces.size(), size, updates);
-  return surfaces;
+  return MeshLikeTheDevice(camera, T_world_camera, ranges, device, scan.max_range_m, rng_seed);
 }
 
 }  // namespace

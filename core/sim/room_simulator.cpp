@@ -20,8 +20,8 @@ namespace {
 using detail::Stream;
 using U = std::uniform_real_distribution<double>;
 constexpr double kWall = 0.1;
-constexpr double kSecondsPerView = 0.5;
-constexpr double kNoiseSigmasInBand = 6.0;
+using detail::kNoiseSigmasInBand;
+using detail::kSecondsPerView;
 constexpr double kSmallVoxel = 0.0346;  // the small configuration's (1,000 triangles per m^3)
 
 // One placed object's footprint (room frame, x-y) and what it is.
@@ -359,39 +359,7 @@ Result<std::vector<Surface>> FuseOpen3d(const Layout& l, const TriangleMesh& arm
     ranges.push_back(std::move(range));
     T_world_camera.push_back(T_world_room * v.T_room_camera_believed);
   }
-  const int n = static_cast<int>(views.size()), updates = std::max(1, device.surface_updates);
-  std::vector<int> snapshot_after;
-  for (int k = 0; k < updates; ++k)
-    snapshot_after.push_back(static_cast<int>(std::floor((n - 1) * (2.0 / 3.0 + (k + 1) / (3.0 * updates)))));
-  const Open3dFusion fusion{.voxel_m = device.voxel_m,
-                            .truncation_m = std::max(3.0 * device.voxel_m, kNoiseSigmasInBand * device.depth_noise_m),
-                            .max_range_m = scan.max_range_m};
-  ARREF_ASSIGN_OR_RETURN(const auto meshes, FuseWithOpen3d(camera, T_world_camera, ranges, fusion, snapshot_after));
-  const double size = device.surface_size_m;
-  const int target = std::max(1, static_cast<int>(std::lround(device.triangles_per_m3 * size * size * size)));
-  std::vector<Surface> surfaces;
-  for (int k = 0; k < updates; ++k) {
-    const double time_s = (snapshot_after[static_cast<std::size_t>(k)] + 1) * kSecondsPerView;
-    for (Surface& s : SplitIntoSurfaces(meshes[static_cast<std::size_t>(k)], size, time_s)) {
-      const Vec3 corner = s.T_world_surface.translation();
-      std::uint64_t key = 0;
-      for (int a = 0; a < 3; ++a)
-        key = detail::SplitMix64(key ^ static_cast<std::uint64_t>(std::llround(corner[a] / size) + (1 << 20)));
-      auto surface_rng = Stream(seed ^ key, 12);
-      if (static_cast<int>(surface_rng() % static_cast<std::uint64_t>(updates)) != k) continue;  // meshed at another time
-      const Iso3 error = detail::SurfaceError(device, corner + Vec3::Constant(size / 2), surface_rng);
-      ARREF_ASSIGN_OR_RETURN(s.mesh, DecimateWithOpen3d(s.mesh, target));
-      const float q = static_cast<float>(device.quantisation_m);
-      for (Vec3f& v : s.mesh.vertices) {
-        v = ((error * (corner + v.cast<double>())) - corner).cast<float>();
-        if (q > 0) v = (v / q).array().round().matrix() * q;
-      }
-      if (!detail::HasArea(s.mesh)) continue;
-      s.id = surfaces.size() + 1;
-      surfaces.push_back(std::move(s));
-    }
-  }
-  return surfaces;
+  return detail::MeshLikeTheDevice(camera, T_world_camera, ranges, device, scan.max_range_m, seed);
 }
 
 Status Validate(const RoomRobots& robots, const RoomOptions& o) {

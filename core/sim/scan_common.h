@@ -4,12 +4,18 @@
 
 #include <cstdint>
 #include <random>
+#include <vector>
 
 #include "arref/base/geometry.h"
+#include "arref/base/status.h"
 #include "arref/fusion/raycaster.h"
 #include "arref/sim/cell_simulator.h"
 
 namespace arref::sim::detail {
+
+// Long-throw depth runs at a few frames per second: time between the path's views.
+constexpr double kSecondsPerView = 0.5;
+constexpr double kNoiseSigmasInBand = 6.0;  // TSDF truncation of at least this many depth sigmas
 
 std::uint64_t SplitMix64(std::uint64_t x);
 // Counter-based Gaussian: a pixel's noise depends only on (seed, view, pixel).
@@ -23,5 +29,23 @@ std::mt19937_64 Stream(std::uint64_t seed, std::uint64_t purpose);
 // A surface's rigid error up to the device's maxima, about `centre`.
 Iso3 SurfaceError(const DeviceVariation& device, const Vec3& centre, std::mt19937_64& rng);
 bool HasArea(const TriangleMesh& mesh);
+
+// The surface cube at `corner` (world, a multiple of the surface size): which of the device's
+// update times meshed it, and the head-pose error it was moved by then. One draw per cube, so
+// the mesher and the measure of what it did to the robot agree.
+struct CubeError {
+  int time_index = 0;
+  Iso3 T_moved_true = Iso3::Identity();
+};
+CubeError ErrorOfCube(const DeviceVariation& device, const Vec3& corner, double size, int updates, std::uint64_t rng_seed);
+
+// The device's mesher on a walk's range images: Open3D's TSDF fused up to each update time (over
+// the walk's last third), cut into surface cubes that are each meshed at their own time (the
+// spatial mapper re-meshes a surface when it changes, Microsoft's "Spatial mapping" guide), moved
+// by the head-pose error of that time (ErrorOfCube), decimated to the device's density on their
+// own and quantised.
+Result<std::vector<Surface>> MeshLikeTheDevice(const PinholeCamera& camera, const std::vector<Iso3>& T_world_camera,
+                                               const std::vector<RangeImage>& ranges, const DeviceVariation& device,
+                                               double max_range_m, std::uint64_t rng_seed);
 
 }  // namespace arref::sim::detail

@@ -15,6 +15,7 @@
 #include <numbers>
 
 #include "arref/baselines/baselines.h"
+#include "pcl_cloud.h"
 #include "arref/scene/metrics.h"
 #include "arref/scene/nearest_neighbor.h"
 #include "arref/scene/sampling.h"
@@ -25,15 +26,6 @@ namespace {
 using PointN = pcl::PointNormal;
 using CloudN = pcl::PointCloud<PointN>;
 
-CloudN::Ptr ToPcl(const PointCloud& cloud) {
-  auto out = pcl::make_shared<CloudN>();
-  out->resize(cloud.size());
-  for (std::size_t i = 0; i < cloud.size(); ++i) {
-    (*out)[i].getVector3fMap() = cloud.points[i];
-    (*out)[i].getNormalVector3fMap() = cloud.has_normals() ? cloud.normals[i].normalized() : Vec3f::UnitZ();
-  }
-  return out;
-}
 
 // One SHOT descriptor for each centre, over the surface points within radius of it.
 pcl::PointCloud<pcl::SHOT352> Shot(const CloudN::Ptr& surface, const std::vector<Vec3f>& centres, double radius) {
@@ -136,8 +128,8 @@ Result<RegistrationOutput> RegisterSlidingBoxShot(const PointCloud& model_base, 
   out.stages.push_back(fmt::format("boxes-{}", centres.size()));
   if (centres.empty()) return Status::FailedPrecondition("sliding-box-shot: no box holds enough points for the robot");
   const double radius = 0.5 * size.norm();
-  const pcl::PointCloud<pcl::SHOT352> model_shot = Shot(ToPcl(model), {model_centre.cast<float>()}, radius);
-  const pcl::PointCloud<pcl::SHOT352> box_shots = Shot(ToPcl(scene), centres, radius);
+  const pcl::PointCloud<pcl::SHOT352> model_shot = Shot(ToPclUnitNormals(model), {model_centre.cast<float>()}, radius);
+  const pcl::PointCloud<pcl::SHOT352> box_shots = Shot(ToPclUnitNormals(scene), centres, radius);
   if (model_shot.empty() || !Finite(model_shot[0])) return Status::FailedPrecondition("sliding-box-shot: no SHOT descriptor of the model");
   std::size_t best = centres.size();
   double best_d = std::numeric_limits<double>::max();

@@ -10,6 +10,7 @@
 #include <pcl/search/kdtree.h>
 
 #include "global_registration.h"
+#include "../baselines/pcl_cloud.h"
 #include "arref/scene/sampling.h"
 
 namespace arref {
@@ -18,15 +19,6 @@ namespace {
 using PointN = pcl::PointNormal;
 using CloudN = pcl::PointCloud<PointN>;
 
-CloudN::Ptr ToPcl(const PointCloud& cloud) {
-  auto out = pcl::make_shared<CloudN>();
-  out->resize(cloud.size());
-  for (std::size_t i = 0; i < cloud.size(); ++i) {
-    (*out)[i].getVector3fMap() = cloud.points[i];
-    (*out)[i].getNormalVector3fMap() = cloud.has_normals() ? cloud.normals[i].normalized() : Vec3f::UnitZ();
-  }
-  return out;
-}
 
 Iso3 ToIso(const Eigen::Matrix4f& M) {
   Iso3 T;
@@ -89,8 +81,8 @@ Result<GlobalAlignment> AlignPcl4pcs(const PointCloud& model_base, const PointCl
   if (!(p.overlap > 0 && p.overlap <= 1) || !(p.delta_m > 0) || !(p.voxel_m > 0) || p.sample_count < 4 || p.max_time_s < 1)
     return Status::InvalidArgument(fmt::format(
         "{}: overlap must be in (0, 1], delta and voxel > 0 m, samples >= 4, max time >= 1 s", name));
-  const auto model = ToPcl(VoxelDownsample(model_base, p.voxel_m));
-  const auto scene = ToPcl(VoxelDownsample(scene_world, p.voxel_m));
+  const auto model = ToPclUnitNormals(VoxelDownsample(model_base, p.voxel_m));
+  const auto scene = ToPclUnitNormals(VoxelDownsample(scene_world, p.voxel_m));
   ARREF_RETURN_IF_ERROR(CheckSizes(name, *model, *scene, 4));
   if (keypoint_variant) {
     // K-4PCS proper runs on 3D keypoints; the voxel centroids stand in for them here.
@@ -112,8 +104,8 @@ Result<GlobalAlignment> AlignFpfhRansac(const PointCloud& model_base, const Poin
         "similarity and inlier fraction in (0, 1) needed");
   if (!model_base.has_normals() || !scene_world.has_normals())
     return Status::FailedPrecondition("fpfh-ransac needs normals on the model and the scene");
-  const auto model = ToPcl(VoxelDownsample(model_base, p.voxel_m));
-  const auto scene = ToPcl(VoxelDownsample(scene_world, p.voxel_m));
+  const auto model = ToPclUnitNormals(VoxelDownsample(model_base, p.voxel_m));
+  const auto scene = ToPclUnitNormals(VoxelDownsample(scene_world, p.voxel_m));
   ARREF_RETURN_IF_ERROR(CheckSizes("fpfh-ransac", *model, *scene, 3));
   pcl::SampleConsensusPrerejective<PointN, PointN, pcl::FPFHSignature33> ransac;
   ransac.setInputSource(model);

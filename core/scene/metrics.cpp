@@ -36,7 +36,10 @@ FitQuality MeasureFit(const std::vector<Vec3f>& model_base, const Iso3& T_world_
 
 PoseError ComparePoses(const Iso3& T_est, const Iso3& T_true, const std::vector<Vec3f>& model_points) {
   PoseError e;
-  e.translation_m = (T_est.translation() - T_true.translation()).norm();
+  const Vec3 dt = T_est.translation() - T_true.translation();
+  e.translation_m = dt.norm();
+  e.vertical_m = dt.z();
+  e.horizontal_m = dt.head<2>().norm();
   const Eigen::AngleAxisd delta(T_true.rotation().transpose() * T_est.rotation());
   e.rotation_deg = std::abs(delta.angle()) * 180.0 / std::numbers::pi;
   if (model_points.empty()) return e;

@@ -108,6 +108,7 @@ struct Run {
   std::string status;  // the result's OK / LOW_CONFIDENCE / FAILED
   std::string error;
   double rms_m = 0, add_m = 0, translation_m = 0, rotation_deg = 0;
+  double vertical_m = 0, horizontal_m = 0;  // the translation error's parts (PoseError)
   std::map<std::string, double> stage_ms;
   int iterations = 0;  // the method's ICP iterations; 0 where it does not report them (Open3D 0.16)
   double total_ms = 0;

@@ -64,6 +64,7 @@ void ExecuteOne(Job& job) {
     run.rms_m = MeasureFit(cell.robot->samples().points, job.T_world_seed, index, job.options.inlier_threshold_m).rms_m;
     const PoseError e = ComparePoses(job.T_world_seed, truth, cell.robot->samples().points);
     run.ok = true, run.add_m = e.add_m, run.translation_m = e.translation_m, run.rotation_deg = e.rotation_deg;
+    run.vertical_m = e.vertical_m, run.horizontal_m = e.horizontal_m;
     return;
   }
   auto report = RegisterScene(*cell.robot, cell.scene_world, job.T_world_seed, job.options);
@@ -75,6 +76,7 @@ void ExecuteOne(Job& job) {
   run.ok = true;
   run.status = ResultStatusName(report->status);
   run.rms_m = report->rms_m, run.add_m = e.add_m, run.translation_m = e.translation_m, run.rotation_deg = e.rotation_deg;
+  run.vertical_m = e.vertical_m, run.horizontal_m = e.horizontal_m;
   run.iterations = report->iterations;
   for (const auto& t : report->timings) run.stage_ms[t.stage] += t.ms;
   for (const auto& t : report->method_steps) run.stage_ms["register/" + t.stage] += t.ms;

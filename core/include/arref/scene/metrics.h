@@ -19,6 +19,8 @@ FitQuality MeasureFit(const std::vector<Vec3f>& model_base, const Iso3& T_world_
 
 struct PoseError {
   double translation_m = 0.0;  // |t_est - t_true|
+  double vertical_m = 0.0;     // (t_est - t_true) along the world's z (gravity), signed
+  double horizontal_m = 0.0;   // |t_est - t_true| in the world's xy plane
   double rotation_deg = 0.0;   // angle of R_true^T R_est
   double add_m = 0.0;          // ADD (Hinterstoisser et al. 2012): mean |T_est x - T_true x| over model points
 };

@@ -63,6 +63,11 @@ double TrackingService::Now() {
   return std::chrono::duration<double>(SteadyClock::now().time_since_epoch()).count();
 }
 
+double TrackingService::UnixTimeOf(double server_time_s) {
+  const double unix_now = std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+  return unix_now - (Now() - server_time_s);
+}
+
 ClockEstimate TrackingService::ClockOf(std::uint64_t session_id) {
   std::lock_guard lock(mu_);
   auto it = clocks_.find(session_id);
@@ -211,6 +216,7 @@ void TrackingService::Work(Track& t) {
       u->set_session_id(owner_id);
       u->set_frame_id(job.frame_id);
       u->set_frame_time_s(job.frame.time_s);
+      u->set_frame_time_unix_s(UnixTimeOf(job.frame.time_s));
       u->set_state(TrackStateName(r->state));
       *u->mutable_t_world_base() = wire::PoseToProto(r->T_world_base, result_frame);
       u->set_frame(wire::ToProto(result_frame));

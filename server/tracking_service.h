@@ -53,6 +53,8 @@ class TrackingService {
   Status SubmitFrame(const std::string& robot_id, std::uint64_t session_id, std::uint64_t frame_id, DepthFrame frame);
   void RemoveSession(std::uint64_t session_id);
   static double Now();  // the server's clock (steady, seconds), as Pong reports it
+  // A time on that clock as Unix time, by the wall clock now (what ROS stamps with).
+  static double UnixTimeOf(double server_time_s);
 
  private:
   struct Track;

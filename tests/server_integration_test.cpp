@@ -1196,6 +1196,9 @@ TEST(ServerIntegration, TrackingStreamsUpdatesThroughAWorldJump) {
   int scored = 0, within = 0;
   std::vector<double> latency, server_latency;
   for (const auto& u : run.updates) {
+    // The frame's exposure in Unix time (what the ROS bridge stamps with), through the
+    // headset's clock offset: within the clock estimate's error.
+    EXPECT_LT(std::abs(u.unix_time_error_s), 0.005) << "frame " << u.frame_id;
     latency.push_back(u.latency_ms);
     server_latency.push_back(u.server_latency_ms);
     if (u.true_time_s < 1.0 || (u.after_jump && u.true_time_s < run.jump_time_s + 1.0)) continue;

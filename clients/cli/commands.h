@@ -10,5 +10,6 @@ void AddRegisterCommand(CLI::App& app, int* exit_code);
 void AddDemoCommand(CLI::App& app, int* exit_code);
 void AddBenchCommand(CLI::App& app, int* exit_code);
 void AddReplayCommand(CLI::App& app, int* exit_code);
+void AddSimulateTrackCommand(CLI::App& app, int* exit_code);
 
 }  // namespace arref::cli

@@ -27,6 +27,7 @@ int main(int argc, char** argv) {
   arref::cli::AddDemoCommand(app, &exit_code);
   arref::cli::AddBenchCommand(app, &exit_code);
   arref::cli::AddReplayCommand(app, &exit_code);
+  arref::cli::AddSimulateTrackCommand(app, &exit_code);
   try {
     app.parse(argc, argv);
   } catch (const CLI::ParseError& e) {

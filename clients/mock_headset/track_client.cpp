@@ -19,6 +19,12 @@ namespace {
 
 using Clock = std::chrono::steady_clock;
 double MachineNow() { return std::chrono::duration<double>(Clock::now().time_since_epoch()).count(); }
+// A time on the machine's steady clock as Unix time.
+double UnixTimeOf(double machine_time_s) {
+  const double unix_now =
+      std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
+  return unix_now - (MachineNow() - machine_time_s);
+}
 
 // A connection whose sender keeps its own clock (the machine's plus an offset).
 struct Peer {
@@ -114,6 +120,7 @@ TrackHeadsetRun RunTrackingHeadset(const TrackHeadsetOptions& o) {
     if (auto st = headset.conn.Send(m); !st.ok()) return fail(st);
   }
 
+  double start = 0.0;  // the stream's true time 0 on the machine's steady clock
   struct Sent { double true_time_s; bool after_jump; Iso3 truth; Clock::time_point at; };
   std::map<std::uint64_t, Sent> sent;
   auto read_updates = [&](double timeout_s) -> Status {
@@ -140,12 +147,13 @@ TrackHeadsetRun RunTrackingHeadset(const TrackHeadsetOptions& o) {
       r.process_ms = u.process_ms();
       r.true_time_s = it->second.true_time_s;
       r.after_jump = it->second.after_jump;
+      r.unix_time_error_s = u.frame_time_unix_s() - UnixTimeOf(start + it->second.true_time_s);
       out.frames_dropped = u.frames_dropped();
       out.updates.push_back(r);
     }
   };
 
-  const double start = MachineNow();
+  start = MachineNow();
   double last_joint_time = -1.0;
   struct Ready { pb::ClientMessage message; std::uint64_t id; Sent sent; };
   std::vector<Ready> burst;  // made before any is sent, so that they arrive together

@@ -38,6 +38,8 @@ struct TrackUpdateRecord {
   double server_latency_ms = 0.0, process_ms = 0.0;
   double true_time_s = 0.0;
   bool after_jump = false;
+  // TrackingUpdate.frame_time_unix_s minus the exposure's Unix time on this machine's clock.
+  double unix_time_error_s = 0.0;
 };
 
 struct TrackHeadsetRun {

@@ -1,4 +1,4 @@
-"""Python client of arref-server: connect, upload a mesh, seed, register, subscribe, replay.
+"""Python client of arref-server: connect, upload a mesh, seed, register, subscribe, track, replay.
 
     from arref_client import Client
     with Client("127.0.0.1", 7311) as c:
@@ -10,9 +10,11 @@
 from .client import Client, RegistrationResult, RobotInfo, frame_convention, DEFAULT_PORT, PROTOCOL_VERSION
 from .errors import ArrefError, ConnectionClosed, Timeout, ServerError, RegistrationFailed, Cancelled
 from .mesh import Mesh, load_mesh, split_into_surfaces
+from .tracking import ClockOffsetEstimator, TrackingUpdate, TrackOutcome, TrackTruth
 from ._proto import pb
 
 __all__ = ["Client", "RegistrationResult", "RobotInfo", "frame_convention", "DEFAULT_PORT", "PROTOCOL_VERSION",
            "ArrefError", "ConnectionClosed", "Timeout", "ServerError", "RegistrationFailed", "Cancelled",
-           "Mesh", "load_mesh", "split_into_surfaces", "pb"]
+           "Mesh", "load_mesh", "split_into_surfaces", "pb", "ClockOffsetEstimator", "TrackingUpdate", "TrackOutcome",
+           "TrackTruth"]
 __version__ = "0.1.0"

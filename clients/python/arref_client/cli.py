@@ -1,15 +1,18 @@
 """arref-py: a small command line over the Python client (python3 -m arref_client --help).
 
-Exit codes: 0 OK or LOW_CONFIDENCE; 1 FAILED or CANCELLED; 2 bad command line; 3 a file or
+Exit codes: 0 OK or LOW_CONFIDENCE (track: updates came and no Error); 1 FAILED or CANCELLED
+(track: no update, or an Error); 2 bad command line; 3 a file or
 value is malformed; 6 the server answered an Error (its code name is printed); 7 no connection.
 """
 
 import argparse
 import json
+import math
 import sys
 
 from . import errors
 from .client import DEFAULT_PORT, Client
+from .tracking import TrackTruth, pose_error
 
 EXIT_OK, EXIT_FAILED, EXIT_USAGE, EXIT_BAD_INPUT, EXIT_SERVER_ERROR, EXIT_NO_CONNECTION = 0, 1, 2, 3, 6, 7
 
@@ -104,6 +107,40 @@ def cmd_send_recording(args):
     return EXIT_OK if all(r.status in ("OK", "LOW_CONFIDENCE") for r in out.results) else EXIT_FAILED
 
 
+def _update_json(u, truth):
+    out = {"frame_id": u.frame_id, "state": u.state, "frame": u.frame, "position": list(u.pose[:3]),
+           "orientation": list(u.pose[3:]), "frame_time_unix_s": u.frame_time_unix_s, "agreement": u.agreement,
+           "process_ms": u.process_ms, "latency_ms": u.latency_ms, "frames_dropped": u.frames_dropped}
+    if truth is not None and u.frame_id in truth.frames and u.frame == "ros":
+        error_m, yaw_rad = pose_error(u.matrix, truth.frames[u.frame_id]["T_world_base"])
+        out["error_mm"], out["yaw_error_deg"] = error_m * 1e3, math.degrees(yaw_rad)
+    return out
+
+
+def cmd_track(args):
+    from .recording import read_recording
+
+    stream = read_recording(args.stream).messages
+    truth = TrackTruth.load(args.truth) if args.truth else None
+    with _connect(args) as c:
+        out = c.track(args.robot, stream, seed=args.seed, frame=args.frame, result_frame="ros",
+                      pace="fast" if args.fast else "original",
+                      on_update=lambda u: print(json.dumps(_update_json(u, truth)), flush=True))
+    for e in out.errors:
+        print(f"server error {e}", file=sys.stderr)
+    good = sum(u.good for u in out.updates)
+    summary = (f"{out.frames_sent} frames sent, {len(out.updates)} updates ({good} tracking, reacquired or jump), "
+               f"{out.frames_dropped} dropped; clock offset {out.clock_offset_s:.6f} s +- "
+               f"{out.clock_uncertainty_s * 1e3:.2f} ms")
+    if truth is not None:
+        errors_mm = sorted(1e3 * pose_error(u.matrix, truth.frames[u.frame_id]["T_world_base"])[0]
+                           for u in out.updates if u.frame_id in truth.frames)
+        if errors_mm:
+            summary += f"; base error vs truth median {errors_mm[len(errors_mm) // 2]:.1f} mm"
+    print(summary, file=sys.stderr)
+    return EXIT_OK if out.updates and not out.errors else EXIT_FAILED
+
+
 def parser():
     p = argparse.ArgumentParser(prog="arref-py", description="Python client of arref-server")
     p.add_argument("--host", default="127.0.0.1")
@@ -135,6 +172,16 @@ def parser():
     x.add_argument("file")
     x.add_argument("--fast", action="store_true", help="as fast as possible instead of the recorded pace")
     x.set_defaults(run=cmd_send_recording)
+
+    t = sub.add_parser("track", help="track a robot with a stream of depth frames and joint states (arref "
+                                     "simulate-track), print each update as a JSON line")
+    t.add_argument("--stream", required=True, help="the stream: a recording of JointState and DepthFrame messages")
+    t.add_argument("--truth", help="arref simulate-track's truth JSON: each update's error against it")
+    t.add_argument("--robot", default="kr5", help="robot id served by the server")
+    t.add_argument("--seed", type=_pose, help="seed x,y,z,qx,qy,qz,qw in --frame (default: the stream's TrackRequest)")
+    t.add_argument("--frame", choices=["ros", "unity"], default="ros", help="convention of --seed")
+    t.add_argument("--fast", action="store_true", help="as fast as possible instead of the stream's pace")
+    t.set_defaults(run=cmd_track)
     return p
 
 

@@ -6,6 +6,7 @@ Poses are (x, y, z, qx, qy, qz, qw) in the frame convention named with them ("ro
 
 import collections
 import itertools
+import select
 import socket
 import time
 from dataclasses import dataclass, field
@@ -17,6 +18,7 @@ from google.protobuf.internal.encoder import _VarintBytes
 from . import errors
 from ._proto import pb
 from .mesh import Mesh, load_mesh, split_into_surfaces
+from .tracking import ClockOffsetEstimator, TrackOutcome, TrackingUpdate
 
 PROTOCOL_VERSION = pb.PROTOCOL_VERSION_CURRENT
 DEFAULT_PORT = 7311
@@ -108,6 +110,12 @@ class RegistrationResult:
     @property
     def ok(self):
         return self.status == "OK"
+
+
+def _pushed(message):
+    if message.WhichOneof("kind") == "result":
+        return RegistrationResult.from_proto(message.result)
+    return TrackingUpdate.from_proto(message.tracking_update)
 
 
 class Client:
@@ -391,6 +399,16 @@ class Client:
         message = self._wait(lambda s: s.WhichOneof("kind") == "result", "Result", timeout=timeout)
         return RegistrationResult.from_proto(message.result)
 
+    def next_pushed(self, timeout=None):
+        """The next Result or TrackingUpdate pushed to this session (a subscription's or its own):
+        a RegistrationResult or a TrackingUpdate."""
+        for i, s in enumerate(self._backlog):
+            if s.WhichOneof("kind") in ("result", "tracking_update"):
+                del self._backlog[i]
+                return _pushed(s)
+        return _pushed(self._wait(lambda s: s.WhichOneof("kind") in ("result", "tracking_update"),
+                                  "Result or TrackingUpdate", timeout=timeout))
+
     def ping(self, payload=b""):
         """Round trip in seconds."""
         nonce = next(self._nonces)
@@ -401,3 +419,174 @@ class Client:
         self.send(m)
         self._wait(lambda s: s.WhichOneof("kind") == "pong" and s.pong.nonce == nonce, "Pong")
         return time.monotonic() - start
+
+    # ------------------------------------------------------------ continuous referencing
+
+    def sync_clock(self, exchanges=8, clock=time.time):
+        """Estimates the server's clock minus `clock` from Ping/Pong round trips and reports it
+        (ClockReport), so that the server reads this session's timestamps on its own clock.
+        Returns (offset_s, uncertainty_s)."""
+        estimator = ClockOffsetEstimator()
+        for _ in range(exchanges):
+            nonce = next(self._nonces)
+            m = pb.ClientMessage()
+            m.ping.nonce = nonce
+            m.ping.client_time_s = clock()
+            self.send(m)
+            reply = self._wait(lambda s: s.WhichOneof("kind") == "pong" and s.pong.nonce == nonce, "Pong")
+            t3 = clock()
+            estimator.add(reply.pong.client_time_s, reply.pong.receive_time_s, reply.pong.server_time_s, t3)
+        m = pb.ClientMessage()
+        m.clock_report.offset_s = estimator.offset_s
+        m.clock_report.uncertainty_s = estimator.uncertainty_s
+        self.send(m)
+        return estimator.offset_s, estimator.uncertainty_s
+
+    def start_tracking(self, robot_id, seed=None, frame="ros", result_frame="ros"):
+        """TrackRequest: this session's depth frames track the robot from `seed` (a pose in
+        `frame`; None: the session's SeedPose). Waits until the server took it: UnknownRobot,
+        NoSeed or InvalidArgument are raised."""
+        m = pb.ClientMessage()
+        m.track_request.robot_id = robot_id
+        if seed is not None:
+            pose_to_proto(seed, m.track_request.seed.T_world_seed)
+            m.track_request.seed.frame = frame_convention(frame)
+        m.track_request.result_frame = frame_convention(result_frame)
+        self.send(m)
+        self.sync()
+
+    def stop_tracking(self, robot_id):
+        m = pb.ClientMessage()
+        m.track_request.robot_id = robot_id
+        m.track_request.stop = True
+        self.send(m)
+
+    def send_depth_frame(self, robot_id, frame_id, depth_mm, intrinsics, camera_pose, timestamp_s, frame="ros",
+                         wrap_m=0.0):
+        """One depth image (height x width z-depths in mm, 0: none; as uint16) with its pinhole
+        intrinsics (fx, fy, cx, cy) and T_world_camera at exposure in `frame` (ROS: the optical
+        frame). No wait: NotTracking / BadDepthFrame come with the next sync() or in track()."""
+        depth = np.ascontiguousarray(depth_mm, dtype="<u2")
+        if depth.ndim != 2:
+            raise ValueError(f"depth_mm: expected a height x width array, got shape {depth.shape}")
+        m = pb.ClientMessage()
+        d = m.depth_frame
+        d.robot_id = robot_id
+        d.frame_id = frame_id
+        d.height, d.width = depth.shape
+        d.fx, d.fy, d.cx, d.cy = (float(v) for v in intrinsics)
+        d.depth_mm = depth.tobytes()
+        pose_to_proto(camera_pose, d.T_world_camera)
+        d.frame = frame_convention(frame)
+        d.timestamp_s = timestamp_s
+        d.wrap_m = wrap_m
+        self.send(m)
+
+    def poll(self, timeout=0.0):
+        """Reads what the server sent within `timeout` (at least what is already here) into the
+        backlog, without blocking longer."""
+        deadline = time.monotonic() + timeout
+        while True:
+            readable, _, _ = select.select([self._sock], [], [], max(0.0, deadline - time.monotonic()))
+            if not readable:
+                break
+            try:
+                chunk = self._sock.recv(1 << 20)
+            except OSError as e:
+                raise errors.ConnectionClosed(f"receiving failed: {e}") from e
+            if not chunk:
+                raise errors.ConnectionClosed("the server closed the connection")
+            self._rx += chunk
+            deadline = time.monotonic()  # then only what is already waiting
+        while True:
+            try:
+                self._backlog.append(self._read(0.0))
+            except errors.Timeout:
+                break
+
+    def take_tracking(self):
+        """The TrackingUpdates and Errors read so far (their order kept), removed from the backlog:
+        (list of TrackingUpdate, list of ServerError)."""
+        updates, errs, rest = [], [], collections.deque()
+        for s in self._backlog:
+            kind = s.WhichOneof("kind")
+            if kind == "tracking_update":
+                updates.append(TrackingUpdate.from_proto(s.tracking_update))
+            elif kind == "error":
+                if s.error in self.async_errors:
+                    self.async_errors.remove(s.error)
+                errs.append(errors.error_from_message(s.error))
+            else:
+                rest.append(s)
+        self._backlog = rest
+        return updates, errs
+
+    def next_tracking_update(self, timeout=None):
+        """The next TrackingUpdate pushed to this session (its own frames' or a subscription's)."""
+        message = self._wait(lambda s: s.WhichOneof("kind") == "tracking_update", "TrackingUpdate", timeout=timeout)
+        return TrackingUpdate.from_proto(message.tracking_update)
+
+    def track(self, robot_id, stream, *, seed=None, frame="ros", result_frame="ros", pace="original",
+              clock=time.time, on_update=None, settle_s=10.0):
+        """Tracks the robot with a stream of joint states and depth frames, and collects the updates.
+
+        stream: (t_s, pb.ClientMessage) pairs or RecordedMessages in time order (e.g. from
+        `arref simulate-track`, read with recording.read_recording), every timestamp_s on the
+        stream's own clock from 0: each is sent as clock() at the start plus its own, after the
+        clock is synchronised and reported, at its t_s ("original" pace) or back to back ("fast",
+        where the server drops all but the newest waiting frame). A TrackRequest in the stream
+        gives the seed unless `seed` (in `frame`) is given. Waits up to settle_s after the last
+        frame for the updates still due, then stops tracking. Returns a TrackOutcome."""
+        if pace not in ("original", "fast"):
+            raise ValueError(f"pace '{pace}': expected original or fast")
+        items = [(m.t_s, m.message) if hasattr(m, "t_s") else (float(m[0]), m[1]) for m in stream]
+        if seed is None:
+            requests = [m.track_request for _, m in items if m.WhichOneof("kind") == "track_request"]
+            if not requests:
+                raise ValueError("track: no seed given and no TrackRequest in the stream")
+            seed = pose_from_proto(requests[0].seed.T_world_seed)
+            frame = requests[0].seed.frame
+        offset, uncertainty = self.sync_clock(clock=clock)
+        self.start_tracking(robot_id, seed, frame=frame, result_frame=result_frame)
+        out = TrackOutcome([], 0, 0, [], offset, uncertainty, {})
+
+        def collect():
+            updates, errs = self.take_tracking()
+            out.errors.extend(errs)
+            for u in updates:
+                if u.session_id != self.session_id or u.frame_id not in out.sent_times:
+                    continue  # a subscription's, or a frame of an earlier request
+                out.updates.append(u)
+                out.frames_dropped = u.frames_dropped
+                if on_update:
+                    on_update(u)
+
+        base = clock()
+        start = time.monotonic()
+        t_first = items[0][0] if items else 0.0
+        for t_s, message in items:
+            kind = message.WhichOneof("kind")
+            if kind not in ("joint_state", "depth_frame"):
+                continue
+            if pace == "original":
+                delay = (t_s - t_first) - (time.monotonic() - start)
+                if delay > 0:
+                    self.poll(delay)
+                    collect()
+            m = pb.ClientMessage()
+            m.CopyFrom(message)
+            body = getattr(m, kind)
+            body.robot_id = robot_id
+            body.timestamp_s = base + body.timestamp_s
+            if kind == "depth_frame":
+                out.sent_times[body.frame_id] = body.timestamp_s
+                out.frames_sent += 1
+            self.send(m)
+            self.poll(0.0)
+            collect()
+        deadline = time.monotonic() + settle_s
+        while len(out.updates) + out.frames_dropped + len(out.errors) < out.frames_sent and time.monotonic() < deadline:
+            self.poll(0.05)
+            collect()
+        self.stop_tracking(robot_id)
+        return out

@@ -51,6 +51,10 @@ class Cancelled(ServerError): pass
 class ShuttingDown(ServerError): pass
 class IdleTimeout(ServerError): pass
 class InternalError(ServerError): pass
+class HandshakeTimeout(ServerError): pass
+class FrameTimeout(ServerError): pass
+class NotTracking(ServerError): pass
+class BadDepthFrame(ServerError): pass
 
 
 _BY_CODE = {
@@ -73,6 +77,10 @@ _BY_CODE = {
     pb.ERROR_CODE_SHUTTING_DOWN: ShuttingDown,
     pb.ERROR_CODE_IDLE_TIMEOUT: IdleTimeout,
     pb.ERROR_CODE_INTERNAL: InternalError,
+    pb.ERROR_CODE_HANDSHAKE_TIMEOUT: HandshakeTimeout,
+    pb.ERROR_CODE_FRAME_TIMEOUT: FrameTimeout,
+    pb.ERROR_CODE_NOT_TRACKING: NotTracking,
+    pb.ERROR_CODE_BAD_DEPTH_FRAME: BadDepthFrame,
 }
 
 

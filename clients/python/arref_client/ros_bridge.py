@@ -6,13 +6,17 @@ T_world_base in ROS's own convention (REP 103, the server's internal frame), sta
 time the result's data was taken (Result.scene_time_unix_s), never the publication time.
 Registrations are one-shot, so they go to /tf_static (latched; every robot's latest transform
 in one message, as tf2's static broadcaster keeps them); `static: false` sends them on /tf.
-Only OK results unless `publish_low_confidence`. It reconnects by itself and logs it.
+Only OK results unless `publish_low_confidence`. Continuous referencing's TrackingUpdates go to
+/tf as they arrive, the same frames, stamped with their frame's exposure
+(TrackingUpdate.frame_time_unix_s); only the states the tracker stands behind (tracking,
+reacquired, jump) unless `tracking_states` names others. It reconnects by itself and logs it.
 
 Config (YAML, all optional; flags override):
     server: {host: 127.0.0.1, port: 7311, auth_token: ""}
     world_frame: world             # parent of every robot unless a robot names its own
     static: true
     publish_low_confidence: false
+    tracking_states: [tracking, reacquired, jump]
     reconnect_s: 2.0
     robots:                        # default: every robot the server serves
       - {id: kr5, parent_frame: hololens_world, child_frame: kr5_base_link}
@@ -30,6 +34,10 @@ import numpy as np
 
 from . import errors
 from .client import DEFAULT_PORT, Client
+from .tracking import GOOD_STATES, TrackingUpdate
+
+# Every state a TrackingUpdate can carry (arref.proto, TrackingUpdate.state).
+TRACKING_STATES = ("tracking", "rejected", "lost", "reacquired", "jump", "no_robot")
 
 log = logging.getLogger("arref-ros-bridge")
 
@@ -49,6 +57,7 @@ class BridgeConfig:
     world_frame: str = "world"
     static: bool = True
     publish_low_confidence: bool = False
+    tracking_states: tuple = GOOD_STATES  # TrackingUpdate states published on /tf
     reconnect_s: float = 2.0
     ping_s: float = 30.0  # keeps the session open past the server's idle timeout
     robots: list = field(default_factory=list)  # RobotFrames; empty: every robot served
@@ -59,7 +68,7 @@ def load_config(path):
 
     with open(path) as f:
         data = yaml.safe_load(f) or {}
-    known = {"server", "world_frame", "static", "publish_low_confidence", "reconnect_s", "robots"}
+    known = {"server", "world_frame", "static", "publish_low_confidence", "tracking_states", "reconnect_s", "robots"}
     unknown = set(data) - known
     if unknown:
         raise ValueError(f"{path}: unknown keys {sorted(unknown)} (known: {sorted(known)})")
@@ -72,6 +81,7 @@ def load_config(path):
     c.static = bool(data.get("static", c.static))
     c.publish_low_confidence = bool(data.get("publish_low_confidence", c.publish_low_confidence))
     c.reconnect_s = float(data.get("reconnect_s", c.reconnect_s))
+    c.tracking_states = tracking_states(data.get("tracking_states", c.tracking_states), path)
     for i, r in enumerate(data.get("robots", []) or []):
         if "id" not in r:
             raise ValueError(f"{path}: robots[{i}] has no id")
@@ -79,8 +89,19 @@ def load_config(path):
     return c
 
 
-def should_publish(result, config):
-    return result.status == "OK" or (config.publish_low_confidence and result.status == "LOW_CONFIDENCE")
+def tracking_states(states, where):
+    states = tuple(str(x) for x in states)
+    unknown = set(states) - set(TRACKING_STATES)
+    if unknown:
+        raise ValueError(f"{where}: tracking_states {sorted(unknown)} unknown (known: {', '.join(TRACKING_STATES)})")
+    return states
+
+
+def should_publish(pushed, config):
+    """A Result: OK (or LOW_CONFIDENCE if configured); a TrackingUpdate: one of tracking_states."""
+    if isinstance(pushed, TrackingUpdate):
+        return pushed.state in config.tracking_states
+    return pushed.status == "OK" or (config.publish_low_confidence and pushed.status == "LOW_CONFIDENCE")
 
 
 def quaternion_from_matrix(R):
@@ -110,12 +131,19 @@ class Transform:
     stamp_s: float
     translation: tuple
     rotation: tuple  # x, y, z, w
+    dynamic: bool = False  # /tf whatever the config says (tracking); else as `static` says
 
 
-def transform_of(result, frames):
-    """The tf transform of a result: T_world_base from its internal (ROS) matrix."""
-    T = result.matrix
-    stamp = result.proto.scene_time_unix_s
+def transform_of(pushed, frames):
+    """The tf transform of a Result (T_world_base from its internal, ROS matrix) or of a
+    TrackingUpdate (its pose in ROS's convention), stamped with the time of its data."""
+    if isinstance(pushed, TrackingUpdate):
+        p = pushed.ros_pose
+        q = np.asarray(p[3:], dtype=np.float64)
+        return Transform(frames.parent_frame, frames.child_frame, pushed.frame_time_unix_s, tuple(p[:3]),
+                         tuple(q / np.linalg.norm(q)), dynamic=True)
+    T = pushed.matrix
+    stamp = pushed.proto.scene_time_unix_s
     return Transform(frames.parent_frame, frames.child_frame, stamp, tuple(T[:3, 3]), quaternion_from_matrix(T[:3, :3]))
 
 
@@ -127,6 +155,7 @@ class Bridge:
         self.publish = publish
         self.is_shutdown = is_shutdown
         self.frames = {}  # robot id -> RobotFrames with names filled in
+        self._tracking = {}  # robot id -> (state, updates published, skipped) since the last log line
 
     def _connect(self):
         c = Client(self.config.host, self.config.port, client_name="arref-ros-bridge",
@@ -142,8 +171,8 @@ class Bridge:
             frames = RobotFrames(r.id, r.parent_frame or self.config.world_frame, r.child_frame or served[r.id].base_link)
             c.subscribe(r.id)
             self.frames[r.id] = frames
-            log.info("publishing robot '%s' as %s -> %s on %s", r.id, frames.parent_frame, frames.child_frame,
-                     "/tf_static" if self.config.static else "/tf")
+            log.info("publishing robot '%s' as %s -> %s on %s (tracking updates on /tf)", r.id, frames.parent_frame,
+                     frames.child_frame, "/tf_static" if self.config.static else "/tf")
         return c
 
     def run(self):
@@ -175,15 +204,19 @@ class Bridge:
         last_ping = time.monotonic()
         while not self.is_shutdown():
             try:
-                result = client.next_result(timeout=1.0)
+                pushed = client.next_pushed(timeout=1.0)
             except errors.Timeout:
                 if time.monotonic() - last_ping > self.config.ping_s:
                     client.ping()
                     last_ping = time.monotonic()
                 continue
-            frames = self.frames.get(result.robot_id)
+            frames = self.frames.get(pushed.robot_id)
             if frames is None:
                 continue
+            if isinstance(pushed, TrackingUpdate):
+                self._on_tracking(pushed, frames)
+                continue
+            result = pushed
             if not should_publish(result, self.config):
                 log.info("robot '%s' request %d: %s (%s): not published", result.robot_id, result.request_id,
                          result.status, result.message)
@@ -195,6 +228,26 @@ class Bridge:
             self.publish(t)
             log.info("robot '%s' request %d (session %d): %s -> %s at (%.4f, %.4f, %.4f), stamp %.3f", result.robot_id,
                      result.request_id, result.session_id, t.parent, t.child, *t.translation, t.stamp_s)
+
+    def _on_tracking(self, u, frames):
+        """Each update of a configured state on /tf; the log says when a robot's tracking state
+        changes (with the counts since), not every frame."""
+        state, published, skipped = self._tracking.get(u.robot_id, ("", 0, 0))
+        if u.state != state:
+            log.info("robot '%s' tracking (session %d): %s from frame %d (%d updates published, %d skipped so far)",
+                     u.robot_id, u.session_id, u.state, u.frame_id, published, skipped)
+        if not should_publish(u, self.config):
+            self._tracking[u.robot_id] = (u.state, published, skipped + 1)
+            return
+        if u.frame_time_unix_s <= 0:  # a server before frame_time_unix_s: no data time to stamp with
+            if skipped == 0 or u.state != state:
+                log.warning("tracking update without frame_time_unix_s (older server?): not published")
+            self._tracking[u.robot_id] = (u.state, published, skipped + 1)
+            return
+        self.publish(transform_of(u, frames))
+        self._tracking[u.robot_id] = (u.state, published + 1, skipped)
+        log.debug("robot '%s' frame %d: %s -> %s, stamp %.3f", u.robot_id, u.frame_id, frames.parent_frame,
+                  frames.child_frame, u.frame_time_unix_s)
 
     def _sleep(self, seconds):
         end = time.monotonic() + seconds
@@ -209,7 +262,8 @@ class RosPublisher:
         import tf2_ros
 
         self.static = static
-        self._broadcaster = tf2_ros.StaticTransformBroadcaster() if static else tf2_ros.TransformBroadcaster()
+        self._static = tf2_ros.StaticTransformBroadcaster() if static else None
+        self._dynamic = tf2_ros.TransformBroadcaster()
         self._latched = {}  # child frame -> TransformStamped: a latched topic keeps only its last message
 
     def __call__(self, t):
@@ -223,11 +277,11 @@ class RosPublisher:
         m.transform.translation.x, m.transform.translation.y, m.transform.translation.z = t.translation
         (m.transform.rotation.x, m.transform.rotation.y, m.transform.rotation.z,
          m.transform.rotation.w) = t.rotation
-        if self.static:
+        if self.static and not t.dynamic:
             self._latched[t.child] = m
-            self._broadcaster.sendTransform(list(self._latched.values()))
+            self._static.sendTransform(list(self._latched.values()))
         else:
-            self._broadcaster.sendTransform(m)
+            self._dynamic.sendTransform(m)
 
 
 def parser():
@@ -241,6 +295,8 @@ def parser():
                    help="publish this robot (repeatable), optionally naming its base frame and world frame")
     p.add_argument("--dynamic", action="store_true", help="publish on /tf instead of /tf_static")
     p.add_argument("--publish-low-confidence", action="store_true")
+    p.add_argument("--tracking-states", help="comma-separated TrackingUpdate states published on /tf "
+                                             f"(default {','.join(GOOD_STATES)}; any of {', '.join(TRACKING_STATES)})")
     p.add_argument("--reconnect", type=float, help="seconds between connection attempts")
     p.add_argument("--log-level", default="info", choices=["debug", "info", "warning", "error"])
     return p
@@ -262,6 +318,8 @@ def config_from_args(args):
         c.publish_low_confidence = True
     if args.reconnect:
         c.reconnect_s = args.reconnect
+    if args.tracking_states:
+        c.tracking_states = tracking_states(args.tracking_states.split(","), "--tracking-states")
     if args.robot:
         c.robots = []
         for spec in args.robot:

@@ -89,3 +89,16 @@ class Cell:
 def python_cli(*args, **kwargs):
     """Runs `python3 -m arref_client ARGS` with this interpreter and environment."""
     return subprocess.run([sys.executable, "-m", "arref_client", *args], capture_output=True, text=True, **kwargs)
+
+
+class TrackStream:
+    """A simulated tracking stream with ground truth, written by the real `arref simulate-track`
+    (the C++ track simulator the mock headset streams): a recording of joint states and depth
+    frames, and the true T_world_base of every frame."""
+
+    def __init__(self, folder, rng_seed, seconds=3.0, jump_at=100.0, kind="long-throw"):
+        self.path = str(folder / f"track_{rng_seed}.arrec")
+        self.truth_path = str(folder / f"track_{rng_seed}_truth.json")
+        subprocess.run([ARREF, "--log-level", "warn", "simulate-track", "--rng-seed", str(rng_seed), "--seconds",
+                        str(seconds), "--jump-at", str(jump_at), "--kind", kind, "--stream-out", self.path,
+                        "--truth-out", self.truth_path], check=True)

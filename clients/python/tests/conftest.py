@@ -2,7 +2,7 @@
 
 import pytest
 
-from arref_testing import Cell, ServerProcess
+from arref_testing import Cell, ServerProcess, TrackStream
 
 
 @pytest.fixture(scope="session")
@@ -20,3 +20,8 @@ def cell_ros(tmp_path_factory):
 @pytest.fixture(scope="session")
 def cell_unity(tmp_path_factory):
     return Cell(tmp_path_factory.mktemp("cell_unity"), "unity", 3)
+
+
+@pytest.fixture(scope="session")
+def track_stream(tmp_path_factory):
+    return TrackStream(tmp_path_factory.mktemp("track"), 7)

@@ -8,6 +8,7 @@ import pytest
 
 from arref_client import Client, errors, load_mesh, pb, split_into_surfaces
 from arref_client.client import encode_frame
+from arref_client.tracking import matrix_from_pose, pose_unity_to_ros
 from arref_testing import ServerProcess, python_cli
 
 # Success = the base within this of the truth (arref-icp lands within 1 cm on these cells; the
@@ -78,6 +79,8 @@ def test_register_in_unity_frame_matches_ros(server, cell_ros, cell_unity):
         r = c.register("kr5", method="arref-icp-fast")
     assert r.frame == "unity"  # the seed's convention, as the protocol says
     assert_near_truth(r, cell_ros)
+    # The client's Unity -> ROS mapping (the ROS bridge's, for tracking updates) is the server's.
+    np.testing.assert_allclose(matrix_from_pose(pose_unity_to_ros(r.pose)), r.matrix, atol=1e-9)
     x, y, z = r.matrix[:3, 3]
     np.testing.assert_allclose(r.pose[:3], (-y, z, x), atol=1e-6)
     with Client("127.0.0.1", server.port) as c:

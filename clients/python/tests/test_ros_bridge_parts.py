@@ -58,3 +58,42 @@ def test_shipped_config_and_flags(tmp_path):
     bad.write_text("world_frmae: x\n")
     with pytest.raises(ValueError, match="world_frmae"):
         load_config(str(bad))
+
+
+def tracking_update(state="tracking", frame=None, pose=(1.0, 2.0, 0.5, 0.0, 0.0, 0.6, 0.8), unix_s=1.7e9):
+    from arref_client import TrackingUpdate, pb
+
+    u = pb.TrackingUpdate(robot_id="kr5", frame_id=3, state=state, frame=frame or pb.FRAME_CONVENTION_ROS,
+                          frame_time_unix_s=unix_s)
+    p = u.T_world_base
+    p.position.x, p.position.y, p.position.z = pose[:3]
+    p.orientation.x, p.orientation.y, p.orientation.z, p.orientation.w = pose[3:]
+    return TrackingUpdate.from_proto(u)
+
+
+def test_tracking_updates_in_good_states_only_unless_configured():
+    c = BridgeConfig()
+    assert [s for s in ("tracking", "reacquired", "jump", "rejected", "lost", "no_robot")
+            if should_publish(tracking_update(s), c)] == ["tracking", "reacquired", "jump"]
+    args = parser().parse_args(["--tracking-states", "tracking,rejected"])
+    c = config_from_args(args)
+    assert should_publish(tracking_update("rejected"), c) and not should_publish(tracking_update("jump"), c)
+    with pytest.raises(ValueError, match="tracked"):
+        config_from_args(parser().parse_args(["--tracking-states", "tracked"]))
+
+
+def test_tracking_transform_is_dynamic_in_ros_frame_with_the_frame_time():
+    from arref_client import pb
+    from arref_client.ros_bridge import RobotFrames, transform_of
+
+    frames = RobotFrames("kr5", "hololens_world", "kr5_base")
+    t = transform_of(tracking_update(), frames)
+    assert t.dynamic and t.stamp_s == 1.7e9 and (t.parent, t.child) == ("hololens_world", "kr5_base")
+    np.testing.assert_allclose(t.translation, (1.0, 2.0, 0.5))
+    np.testing.assert_allclose(t.rotation, (0.0, 0.0, 0.6, 0.8))
+    # The same pose as a Unity-frame session receives it: p_unity = (-y, z, x),
+    # q_unity = (-q.y, q.z, q.x, -q.w) (the inverse of the protocol's mapping).
+    u = transform_of(tracking_update(frame=pb.FRAME_CONVENTION_UNITY, pose=(-2.0, 0.5, 1.0, -0.0, 0.6, 0.0, -0.8)),
+                     frames)
+    np.testing.assert_allclose(u.translation, t.translation)
+    np.testing.assert_allclose(u.rotation, t.rotation, atol=1e-12)

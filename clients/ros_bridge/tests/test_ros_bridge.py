@@ -1,6 +1,8 @@
 """arref-ros-bridge against a real roscore (started and stopped here) and the real arref-server: a
 registration appears on tf with the configured frames, the result's data stamp and its values;
-a LOW_CONFIDENCE one does not; the bridge reconnects by itself when the server comes back."""
+a LOW_CONFIDENCE one does not; the bridge reconnects by itself when the server comes back; a
+tracking session's updates appear on /tf with the frames' exposure times as stamps, near the
+simulator's truth."""
 
 import os
 import signal
@@ -14,9 +16,11 @@ import numpy as np
 import pytest
 
 sys.path.insert(0, os.path.join(os.path.dirname(__file__), "..", "..", "python", "tests"))
-from arref_testing import Cell, ServerProcess  # noqa: E402
+from arref_testing import Cell, ServerProcess, TrackStream  # noqa: E402
 
-from arref_client import Client  # noqa: E402
+from arref_client import Client, TrackTruth  # noqa: E402
+from arref_client.recording import read_recording  # noqa: E402
+from arref_client.tracking import pose_error  # noqa: E402
 from arref_client.ros_bridge import quaternion_from_matrix  # noqa: E402
 
 BRIDGE = os.path.join(os.path.dirname(__file__), "..", "arref-ros-bridge")
@@ -90,7 +94,10 @@ def ros(tmp_path_factory):
         listener = tf2_ros.TransformListener(buffer)
         static_messages = []
         rospy.Subscriber("/tf_static", TFMessage, static_messages.append)
-        yield {"env": env, "buffer": buffer, "listener": listener, "static": static_messages, "folder": folder}
+        dynamic = []  # (TFMessage, Unix time received)
+        rospy.Subscriber("/tf", TFMessage, lambda m: dynamic.append((m, time.time())))
+        yield {"env": env, "buffer": buffer, "listener": listener, "static": static_messages, "dynamic": dynamic,
+               "folder": folder}
         rospy.signal_shutdown("test done")
     finally:
         core.stop()
@@ -173,6 +180,66 @@ def test_registration_appears_on_tf_and_survives_a_server_restart(ros, cell, tmp
         wait_for(lambda: (lambda t: t and abs(t.transform.translation.x - second.matrix[0, 3]) < 1e-9)(
             lookup(ros["buffer"])), "tf2 to take the second result")
         assert_is_result(lookup(ros["buffer"]), latest_static(ros), second)
+    finally:
+        bridge.stop(signal.SIGTERM)
+        server.stop()
+    assert bridge.proc.returncode == 0, bridge.log()
+
+
+TRACK_CHILD = "kr5_tracked_base"  # not CHILD: tf2 keeps a frame static once it was sent as static
+
+
+def test_tracking_updates_appear_on_tf_with_their_frame_times(ros, tmp_path):
+    import rospy
+
+    stream = TrackStream(tmp_path, 7)
+    truth = TrackTruth.load(stream.truth_path)
+    server = ServerProcess(tmp_path)
+    bridge = Process([sys.executable, BRIDGE, "--port", str(server.port), "--robot", f"kr5:{TRACK_CHILD}:{PARENT}"],
+                     str(tmp_path / "bridge.log"), ros["env"])
+    try:
+        wait_for(lambda: "publishing robot 'kr5'" in bridge.log(), f"the bridge to subscribe\n{bridge.log()}")
+        with Client("127.0.0.1", server.port) as c:
+            out = c.track("kr5", read_recording(stream.path).messages)
+        assert not out.errors, [str(e) for e in out.errors]
+        good = {u.frame_id: u for u in out.updates if u.good}
+        assert len(good) > 40, f"{len(good)} of {len(out.updates)} updates in a good state"
+
+        def ours():
+            return [(t, at) for m, at in ros["dynamic"] for t in m.transforms if t.child_frame_id == TRACK_CHILD]
+
+        wait_for(lambda: len(ours()) >= len(good), f"{len(good)} transforms on /tf\n{bridge.log()}")
+        time.sleep(0.5)  # anything more would be published by now
+        published = ours()
+        # Exactly the updates in a good state, once each, in order, with their values; stamped
+        # with the frame's exposure (the time the client stamped it with), not when published.
+        by_stamp = {round(u.frame_time_unix_s, 6): u for u in good.values()}
+        assert len(published) == len(good)
+        stamps = [t.header.stamp.to_sec() for t, _ in published]
+        assert stamps == sorted(stamps)
+        within, scored = 0, 0
+        for t, received_at in published:
+            assert t.header.frame_id == PARENT
+            stamp = round(t.header.stamp.to_sec(), 6)
+            assert stamp in by_stamp, f"stamp {stamp} is no good update's frame time (publication time?)"
+            u = by_stamp[stamp]
+            assert abs(t.header.stamp.to_sec() - out.sent_times[u.frame_id]) < 0.005
+            assert received_at > t.header.stamp.to_sec()
+            tr, q = t.transform.translation, t.transform.rotation
+            np.testing.assert_allclose([tr.x, tr.y, tr.z], u.pose[:3], atol=1e-9)
+            np.testing.assert_allclose([q.x, q.y, q.z, q.w], np.asarray(u.pose[3:]) / np.linalg.norm(u.pose[3:]),
+                                       atol=1e-9)
+            frame_truth = truth.frames[u.frame_id]
+            if frame_truth["t_s"] >= 1.0:
+                scored += 1
+                error_m, yaw_rad = pose_error(u.matrix, frame_truth["T_world_base"])
+                within += error_m < 0.01 and yaw_rad < np.radians(1.0)
+        assert scored > 40 and within >= 0.9 * scored, f"{within} of {scored} within 10 mm of the truth"
+        # tf2 answers a lookup at a frame's time with that frame's update.
+        t, _ = published[len(published) // 2]
+        looked_up = ros["buffer"].lookup_transform(PARENT, TRACK_CHILD, t.header.stamp, rospy.Duration(5.0))
+        assert looked_up.transform.translation.x == pytest.approx(t.transform.translation.x, abs=1e-9)
+        assert "tracking (session" in bridge.log()
     finally:
         bridge.stop(signal.SIGTERM)
         server.stop()

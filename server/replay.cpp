@@ -4,6 +4,8 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <deque>
+#include <limits>
 #include <map>
 #include <optional>
 
@@ -37,11 +39,12 @@ class OfflineSession {
       case K::kSeedPose: return OnSeedPose(m.seed_pose());
       case K::kJointState: return OnJointState(m.joint_state());
       case K::kRegisterRequest: return OnRegisterRequest(m.register_request(), t_s);
-      default: return std::nullopt;  // Hello, Cancel, Subscribe, Ping: nothing to redo offline
+      case K::kSubscribe: return OnSubscribe(m.subscribe());
+      case K::kPing: return OnPing(m.ping(), t_s);
+      default: return std::nullopt;  // Hello; Cancel is the replay's (it knows what is in flight)
     }
   }
 
- private:
   static pb::ServerMessage Error(pb::ErrorCode code, const std::string& message, std::uint64_t request_id = 0,
                                  std::uint64_t surface_id = 0) {
     pb::ServerMessage reply;
@@ -50,6 +53,30 @@ class OfflineSession {
     e->set_message(message);
     e->set_request_id(request_id);
     e->set_surface_id(surface_id);
+    return reply;
+  }
+
+ private:
+  // Offline there are no other sessions whose results it would see: the answer only.
+  std::optional<pb::ServerMessage> OnSubscribe(const pb::Subscribe& m) {
+    if (!robots_.Find(m.robot_id()))
+      return Error(pb::ERROR_CODE_UNKNOWN_ROBOT,
+                   fmt::format("Subscribe: robot '{}' is not served here (served: {})", m.robot_id(), robots_.Ids()));
+    pb::ServerMessage reply;
+    reply.mutable_subscribed()->set_robot_id(m.robot_id());
+    reply.mutable_subscribed()->set_subscribed(!m.unsubscribe());
+    return reply;
+  }
+
+  // The server's clock is the recording's: seconds after the connection was accepted.
+  static pb::ServerMessage OnPing(const pb::Ping& m, double t_s) {
+    pb::ServerMessage reply;
+    pb::Pong* pong = reply.mutable_pong();
+    pong->set_nonce(m.nonce());
+    pong->set_payload(m.payload());
+    pong->set_client_time_s(m.client_time_s());
+    pong->set_receive_time_s(t_s);
+    pong->set_server_time_s(t_s);
     return reply;
   }
 
@@ -122,6 +149,76 @@ Result<ServerConfig> RegistrationConfig(const wire::Recording& recording, const 
   return recorded;
 }
 
+// A session's Results in the order it would send them: each request runs when the one before it
+// is done (or when it arrives), for as long as it took offline. A Cancel that arrives before its
+// request's run is over answers it CANCELLED instead, as the live server would have (whether
+// it did depends on how long the run took there; the recording does not say).
+class PendingResults {
+ public:
+  explicit PendingResults(std::function<void(std::size_t, double, pb::ServerMessage)> emit) : emit_(std::move(emit)) {}
+
+  void Add(std::size_t index, double t_s, pb::ServerMessage result) {
+    const double run_s = result.result().server_ms() / 1000.0;
+    pending_.push_back({index, t_s, run_s, 0.0, std::move(result)});
+    Reschedule();
+  }
+
+  // Answers every result done by t_s.
+  void Until(double t_s) {
+    while (!pending_.empty() && pending_.front().done_s <= t_s) {
+      free_at_s_ = pending_.front().done_s;
+      emit_(pending_.front().index, pending_.front().t_s, std::move(pending_.front().message));
+      pending_.pop_front();
+    }
+  }
+
+  // The Cancel of a request arriving at t_s: its error, if the live server would have answered one.
+  std::optional<pb::ServerMessage> Cancel(std::uint64_t request_id, double t_s) {
+    if (request_id == 0)
+      return OfflineSession::Error(pb::ERROR_CODE_INVALID_ARGUMENT,
+                                   "Cancel.request_id must be >= 1 (0 is never a request id)");
+    Until(t_s);
+    auto it = std::find_if(pending_.begin(), pending_.end(),
+                           [&](const Pending& p) { return p.message.result().request_id() == request_id; });
+    if (it == pending_.end())
+      return OfflineSession::Error(
+          pb::ERROR_CODE_UNKNOWN_REQUEST,
+          fmt::format("request {} is not in flight (never accepted or already answered)", request_id), request_id);
+    const double started_s = it->done_s - it->run_s;
+    const bool queued = t_s < started_s;
+    const pb::Result& ran = it->message.result();
+    const wire::ResultHeader header{.request_id = ran.request_id(), .robot_id = ran.robot_id(),
+                                    .session_id = ran.session_id(), .queue_ms = 0.0,
+                                    .server_ms = 1000.0 * (t_s - it->t_s),
+                                    .scene_time_unix_s = ran.scene_time_unix_s(),
+                                    .scene_headset_time_s = ran.scene_headset_time_s()};
+    const auto frame = wire::FromProto(ran.frame());
+    it->message = wire::ResultMessage(
+        header, std::nullopt,
+        Status::Cancelled(fmt::format("cancelled by the client while {} (replay: the Cancel came {:.3f} s after the "
+                                      "request, the replayed run took {:.3f} s)",
+                                      queued ? "queued" : "running", t_s - it->t_s, it->run_s)),
+        frame.ok() ? *frame : FrameConvention::kRos);
+    it->run_s = queued ? 0.0 : t_s - started_s;
+    Reschedule();
+    return std::nullopt;
+  }
+
+ private:
+  struct Pending {
+    std::size_t index;
+    double t_s, run_s, done_s;
+    pb::ServerMessage message;
+  };
+  void Reschedule() {
+    double free_s = free_at_s_;
+    for (Pending& p : pending_) free_s = p.done_s = std::max(p.t_s, free_s) + p.run_s;
+  }
+  std::function<void(std::size_t, double, pb::ServerMessage)> emit_;
+  std::deque<Pending> pending_;
+  double free_at_s_ = 0.0;
+};
+
 }  // namespace
 
 Result<std::vector<ReplayedAnswer>> ReplayRecording(const wire::Recording& recording, const ServerConfig& config,
@@ -140,13 +237,24 @@ Result<std::vector<ReplayedAnswer>> ReplayRecording(const wire::Recording& recor
   }
   OfflineSession session(recording.header, *robots, registration.registration);
   std::vector<ReplayedAnswer> answers;
+  const auto emit = [&](std::size_t index, double t_s, pb::ServerMessage message) {
+    answers.push_back({.message_index = index, .t_s = t_s, .message = std::move(message)});
+    if (on_answer) on_answer(answers.back());
+  };
+  PendingResults results(emit);
   for (std::size_t i = 0; i < recording.messages.size(); ++i) {
     const auto& recorded = recording.messages[i];
-    auto answer = session.Handle(recorded.message(), recorded.t_s());
+    results.Until(recorded.t_s());
+    std::optional<pb::ServerMessage> answer =
+        recorded.message().has_cancel() ? results.Cancel(recorded.message().cancel().request_id(), recorded.t_s())
+                                        : session.Handle(recorded.message(), recorded.t_s());
     if (!answer) continue;
-    answers.push_back({.message_index = i, .t_s = recorded.t_s(), .message = std::move(*answer)});
-    if (on_answer) on_answer(answers.back());
+    if (answer->has_result())
+      results.Add(i, recorded.t_s(), std::move(*answer));
+    else
+      emit(i, recorded.t_s(), std::move(*answer));
   }
+  results.Until(std::numeric_limits<double>::infinity());
   return answers;
 }
 

@@ -7,7 +7,7 @@ import subprocess
 import numpy as np
 import pytest
 
-from arref_client import Client, pb
+from arref_client import Client, errors, pb
 from arref_client.recording import read_recording, send_recording
 from arref_testing import ARREF, MOCK_HEADSET, ServerProcess
 
@@ -133,3 +133,51 @@ def _recording_of(folder, session_id):
         if read_recording(str(f)).header.session_id == session_id:
             return f
     raise AssertionError(f"no recording of session {session_id} in {folder}")
+
+
+def test_offline_replay_answers_cancel_subscribe_and_ping(tmp_path, cell_ros):
+    """Cancel, Subscribe and Ping replayed offline: a request cancelled while it ran is CANCELLED,
+    a Cancel of nothing in flight UNKNOWN_REQUEST, subscriptions and pings answered as live."""
+    record_dir = tmp_path / "recordings"
+    server = ServerProcess(tmp_path, record_dir=str(record_dir))
+    try:
+        with Client("127.0.0.1", server.port) as c:
+            c.upload_mesh(cell_ros.mesh["ply"], frame="ros")  # ends with a Ping
+            c.subscribe("kr5")
+            m = pb.ClientMessage()
+            m.subscribe.robot_id = "no-such-robot"
+            c.send(m)
+            with pytest.raises(errors.UnknownRobot):
+                c.sync()
+            cancelled = c.submit("kr5", seed=cell_ros.seed(0), frame="ros", method="arref-icp")
+            c.cancel(cancelled)  # right after Accepted: the request is still queued or running
+            live_cancelled = c.wait_result(cancelled, check=False)
+            c.cancel(99)
+            with pytest.raises(errors.UnknownRequest):
+                c.sync()
+            c.ping(payload=b"replayed")
+            done = c.register("kr5", seed=cell_ros.seed(1), frame="ros", method=METHOD)
+            c.cancel(done.request_id)  # answered already
+            with pytest.raises(errors.UnknownRequest):
+                c.sync()
+            session_id = c.session_id
+    finally:
+        server.stop()
+    assert live_cancelled.status == "CANCELLED"
+    path = str(_recording_of(record_dir, session_id))
+    nonces = [m.message.ping.nonce for m in read_recording(path).messages if m.message.WhichOneof("kind") == "ping"]
+    answers = replay_offline(path)
+    assert [a["pong"] for a in answers if "pong" in a] == nonces and len(nonces) >= 4
+    assert [(a["subscribed"], a["subscribing"]) for a in answers if "subscribed" in a] == [("kr5", True)]
+    assert [(a["error"], a["request_id"]) for a in answers if "error" in a] == [
+        ("ERROR_CODE_UNKNOWN_ROBOT", 0), ("ERROR_CODE_UNKNOWN_REQUEST", 99),
+        ("ERROR_CODE_UNKNOWN_REQUEST", done.request_id)]
+    results = [a for a in answers if "status" in a]
+    assert [(r["request_id"], r["status"]) for r in results] == [(cancelled, "CANCELLED"), (done.request_id, "OK")]
+    assert "cancelled by the client" in results[0]["message"]
+    np.testing.assert_allclose(np.reshape(results[1]["T_world_base"], (4, 4)), done.matrix, atol=SAME_POSE_M)
+    # Answers in the order the session sent them: the cancelled request's before the Pong of
+    # the Ping sent after its Cancel (the one after Cancel(99)).
+    order = [("pong", a["pong"]) if "pong" in a else ("result", a["request_id"]) if "status" in a else None
+             for a in answers]
+    assert order.index(("pong", nonces[1])) < order.index(("result", cancelled)) < order.index(("pong", nonces[2]))

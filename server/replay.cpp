@@ -41,7 +41,9 @@ class OfflineSession {
       case K::kRegisterRequest: return OnRegisterRequest(m.register_request(), t_s);
       case K::kSubscribe: return OnSubscribe(m.subscribe());
       case K::kPing: return OnPing(m.ping(), t_s);
-      default: return std::nullopt;  // Hello; Cancel is the replay's (it knows what is in flight)
+      // Hello; tracking (TrackRequest, DepthFrame, ClockReport) is not re-run offline; Cancel is
+      // the replay's, which knows what is in flight.
+      default: return std::nullopt;
     }
   }
 

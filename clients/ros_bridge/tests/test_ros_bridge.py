@@ -203,7 +203,7 @@ def test_tracking_updates_appear_on_tf_with_their_frame_times(ros, tmp_path):
             out = c.track("kr5", read_recording(stream.path).messages)
         assert not out.errors, [str(e) for e in out.errors]
         good = {u.frame_id: u for u in out.updates if u.good}
-        assert len(good) > 40, f"{len(good)} of {len(out.updates)} updates in a good state"
+        assert len(good) > 20, f"{len(good)} of {len(out.updates)} updates in a good state"
 
         def ours():
             return [(t, at) for m, at in ros["dynamic"] for t in m.transforms if t.child_frame_id == TRACK_CHILD]
@@ -239,7 +239,7 @@ def test_tracking_updates_appear_on_tf_with_their_frame_times(ros, tmp_path):
                 error_m, yaw_rad = pose_error(u.matrix, frame_truth["T_world_base"])
                 within += error_m < 0.01 and yaw_rad < np.radians(1.0)
         assert matched == set(good)
-        assert scored > 40 and within >= 0.9 * scored, f"{within} of {scored} within 10 mm of the truth"
+        assert scored > 20 and within >= 0.9 * scored, f"{within} of {scored} within 10 mm of the truth"
         # tf2 answers a lookup at a frame's time with that frame's update.
         t, _ = published[len(published) // 2]
         looked_up = ros["buffer"].lookup_transform(PARENT, TRACK_CHILD, t.header.stamp, rospy.Duration(5.0))

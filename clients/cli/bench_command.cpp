@@ -45,6 +45,7 @@ struct BenchArgs {
   std::string heldout_robot = "sia10d";
   int robust_cells = 4;
   int robust_seeds = 2;
+  std::vector<std::string> robust_without;
   std::string auto_methods = "arref-auto,sliding-box-shot,super4pcs,fpfh-ransac";
   int auto_rooms = 2;
   bench::TrackConfig track;
@@ -89,6 +90,7 @@ int Run(const BenchArgs& args) {
   bench::RobustnessConfig& rc = config.robustness;
   rc.methods = *robust_methods, rc.meshers = args.meshers, rc.seed_families = args.seed_families;
   rc.split = args.split, rc.heldout_robot = args.heldout_robot, rc.cells = args.robust_cells, rc.seeds = args.robust_seeds;
+  rc.without = args.robust_without;
   rc.package_path = args.robot.package_path;
   auto auto_methods = ParseMethodList(args.auto_methods, "--auto-methods");
   if (!auto_methods.ok()) return Fail(auto_methods.status());
@@ -215,6 +217,10 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
       ->check(CLI::Range(1, 1000))->capture_default_str();
   cmd->add_option("--robust-seeds", args->robust_seeds, "Robustness: seeds per family and cell (--quick: 1)")
       ->check(CLI::Range(1, 1000))->capture_default_str();
+  cmd->add_option("--robust-without", args->robust_without,
+                  "Robustness: headset errors to take out of every cell, to measure what each costs (view-jitter, "
+                  "surface-errors, depth-noise, patches, quantisation)")
+      ->delimiter(',')->check(CLI::IsMember({"view-jitter", "surface-errors", "depth-noise", "patches", "quantisation"}));
   cmd->add_option("--auto-methods", args->auto_methods,
                   "Auto experiment (seedless, whole rooms; runs only when --only names it): methods, comma-separated")
       ->capture_default_str();

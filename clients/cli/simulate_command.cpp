@@ -111,8 +111,8 @@ int Run(const SimulateArgs& args) {
                        {"depth_noise_m", d.depth_noise_m},
                        {"walk_arc_deg", d.walk_arc_deg},
                        {"walk_distance_m", d.walk_distance_m}};
-    truth["mesh_error_add_m"] = cell->mesh_error_add_m;
   }
+  truth["mesh_error_add_m"] = cell->mesh_error_add_m;
   truth["surfaces"] = cell->surfaces.size();
   truth["triangles"] = mesh.triangles.size();
   if (auto st = WriteJsonFile(truth, args.truth_out); !st.ok()) return Fail(st);

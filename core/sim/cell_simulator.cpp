@@ -5,7 +5,9 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <functional>
 #include <numbers>
+#include <optional>
 #include <sstream>
 #include <string>
 #include <tuple>
@@ -13,6 +15,7 @@
 #include "arref/fusion/raycaster.h"
 #include "arref/scene/sampling.h"
 #include "arref/scene/spatial_mesh.h"
+#include "mesh_imprint.h"
 #include "open3d_mesher.h"
 #include "scan_common.h"
 #include "scene_builder.h"
@@ -169,7 +172,12 @@ Iso3 RandomJitter(const ScanOptions& scan, std::mt19937_64& rng) {
 
 namespace {
 
+using detail::MeshImprint;
 using detail::RandomJitter;
+
+// A robot sample is seen by a view when the range at its pixel lies this close to it: a few
+// depth sigmas and the sampling's spacing.
+double SeenTolerance(const ScanOptions& scan) { return 0.02 + 3 * scan.depth_noise_m; }
 
 // The walker circles the robot's front (+x) on an arc; what lies behind stays unseen.
 std::vector<View> WalkingPath(const ScanOptions& scan, const Iso3& T_cell_base, std::mt19937_64& rng) {
@@ -206,7 +214,7 @@ Iso3 RandomWorldFrame(std::mt19937_64& rng) {
 // frame: the headset's voxel grid is aligned with its world, not with the cell.
 Result<TriangleMesh> ScanAndFuse(const CellScene& scene, const SimOptions& options, const Iso3& T_world_cell,
                                  double voxel_m, std::uint64_t rng_seed, std::mt19937_64& rng,
-                                 std::vector<Vec3>* head_path_world) {
+                                 std::vector<Vec3>* head_path_world, MeshImprint* imprint) {
   const ScanOptions& scan = options.scan;
   auto caster = RayCaster::Create(scene.mesh);
   if (!caster.ok()) return caster.status();
@@ -224,6 +232,8 @@ Result<TriangleMesh> ScanAndFuse(const CellScene& scene, const SimOptions& optio
     std::vector<float> incidence;
     RangeImage range = caster->Render(camera, views[i].T_cell_camera_true, scan.max_range_m, &incidence);
     AddRangeNoise(range, scan, rng_seed, i);
+    imprint->AddView(camera, T_world_cell * views[i].T_cell_camera_true, T_world_cell * views[i].T_cell_camera_believed,
+                     range, SeenTolerance(scan));
     ARREF_RETURN_IF_ERROR(volume.Integrate(camera, T_world_cell * views[i].T_cell_camera_believed, range, incidence));
     head_path_world->push_back(T_world_cell * views[i].T_cell_camera_believed.translation());
   }
@@ -340,28 +350,25 @@ namespace {
 using detail::ErrorOfCube;
 using detail::SurfaceError;
 
-// How far the mesh itself puts the robot from where it stands: the ADD (mean displacement of the
-// robot's surface points) of the rigid motion that best maps the robot's true surface onto where
-// the per-surface head-pose errors moved it (Umeyama 1991, Eigen::umeyama, no scale). A fit
-// against the true pose cannot be expected to beat it; it separates the mesh's error from the
-// method's in the bench.
-double MeshDisplacementAdd(const RobotModel& robot, const CellScene& scene, const Iso3& T_world_cell,
-                           const DeviceVariation& device, int updates, std::uint64_t rng_seed) {
+// The robot's true surface for MeshImprint (world), or nothing when it cannot be posed.
+std::optional<MeshImprint> RobotImprint(const RobotModel& robot, const CellScene& scene, const Iso3& T_world_cell,
+                                        std::uint64_t rng_seed) {
   auto posed = robot.PosedMesh(scene.joints);
-  if (!posed.ok() || posed->empty()) return -1.0;
-  const PointCloud points = SampleSurface(*posed, 2000, rng_seed);
+  if (!posed.ok() || posed->empty()) return std::nullopt;
   const Iso3 T_world_base = T_world_cell * scene.T_cell_base;
-  const double size = device.surface_size_m;
-  Eigen::Matrix3Xd truth(3, static_cast<Eigen::Index>(points.size())), moved(3, truth.cols());
-  for (std::size_t i = 0; i < points.size(); ++i) {
-    const Vec3 p = T_world_base * points.points[i].cast<double>();
+  PointCloud points = SampleSurface(*posed, 2000, rng_seed);
+  points.Transform(T_world_base);
+  return MeshImprint(std::move(points), T_world_base.translation());
+}
+
+// The per-surface head-pose errors of the device's mesher at a world point (ErrorOfCube, the
+// draw the mesher made).
+std::function<Iso3(const Vec3&)> SurfaceErrors(const DeviceVariation& device, int updates, std::uint64_t rng_seed) {
+  return [=](const Vec3& p) {
+    const double size = device.surface_size_m;
     const Vec3 corner = (p / size).array().floor().matrix() * size;
-    truth.col(static_cast<Eigen::Index>(i)) = p;
-    moved.col(static_cast<Eigen::Index>(i)) = ErrorOfCube(device, corner, size, updates, rng_seed).T_moved_true * p;
-  }
-  const Eigen::Matrix4d T_moved_true = Eigen::umeyama(truth, moved, false);
-  const Eigen::Matrix3Xd fitted = (T_moved_true.topLeftCorner<3, 3>() * truth).colwise() + T_moved_true.topRightCorner<3, 1>();
-  return (fitted - truth).colwise().norm().mean();
+    return ErrorOfCube(device, corner, size, updates, rng_seed).T_moved_true;
+  };
 }
 
 }  // namespace
@@ -433,7 +440,8 @@ using detail::MeshLikeTheDevice;
 // meshed as the device meshes (MeshLikeTheDevice).
 Result<std::vector<Surface>> ScanAndMeshOpen3d(const CellScene& scene, const RobotModel& robot, const SimOptions& options,
                                                const DeviceVariation& device, const Iso3& T_world_cell, std::uint64_t rng_seed,
-                                               std::mt19937_64& rng, std::vector<Vec3>* head_path_world) {
+                                               std::mt19937_64& rng, std::vector<Vec3>* head_path_world,
+                                               MeshImprint* imprint) {
   const ScanOptions& scan = options.scan;
   auto caster = RayCaster::Create(scene.mesh);
   if (!caster.ok()) return caster.status();
@@ -446,8 +454,9 @@ Result<std::vector<Surface>> ScanAndMeshOpen3d(const CellScene& scene, const Rob
     RangeImage range = caster->Render(camera, views[i].T_cell_camera_true, scan.max_range_m);
     AddRangeNoise(range, scan, rng_seed, i);
     DropPixels(range, camera, views[i].T_cell_camera_true, scene.T_cell_base.translation(), options.fusion.crop_radius_m, patches);
-    ranges.push_back(std::move(range));
     T_world_camera.push_back(T_world_cell * views[i].T_cell_camera_believed);
+    imprint->AddView(camera, T_world_cell * views[i].T_cell_camera_true, T_world_camera.back(), range, SeenTolerance(scan));
+    ranges.push_back(std::move(range));
     head_path_world->push_back(T_world_camera.back().translation());
   }
   return MeshLikeTheDevice(camera, T_world_camera, ranges, device, scan.max_range_m, rng_seed);
@@ -484,6 +493,30 @@ DeviceVariation DrawDeviceVariation(std::uint64_t rng_seed) {
   d.walk_arc_deg = Uniform(seed, 13, 90.0, 360.0);
   d.walk_distance_m = Uniform(seed, 14, 1.0, 3.0);
   return d;
+}
+
+Status LeaveOutErrors(const std::vector<std::string>& errors, std::uint64_t rng_seed, SimOptions* options) {
+  DeviceVariation device = options->fusion.device ? *options->fusion.device : DrawDeviceVariation(rng_seed);
+  // Depth noise is kept small rather than 0: the fusions size their truncation band on it.
+  constexpr double kQuietDepthM = 0.001, kFinestQuantisationM = 1e-5;
+  for (const std::string& e : errors) {
+    if (e == "view-jitter") {
+      SetPoseJitter(&options->scan, 0.0);
+    } else if (e == "surface-errors") {
+      device.surface_error_max_m = 0.0, device.surface_error_max_deg = 0.0;
+    } else if (e == "depth-noise") {
+      device.depth_noise_m = kQuietDepthM, options->scan.depth_noise_m = kQuietDepthM;
+    } else if (e == "patches") {
+      device.missing_patches = 0;
+    } else if (e == "quantisation") {
+      device.quantisation_m = kFinestQuantisationM;
+    } else {
+      return Status::InvalidArgument("unknown device error '" + e +
+                                     "' (view-jitter, surface-errors, depth-noise, patches, quantisation)");
+    }
+  }
+  if (options->fusion.mesher == Mesher::kOpen3d) options->fusion.device = device;
+  return Status::Ok();
 }
 
 const char* SeedFamilyName(SeedFamily family) {
@@ -546,20 +579,24 @@ Result<SimulatedCell> SimulateCell(const RobotModel& robot, const SimOptions& re
   cell.joints = scene->joints;
   cell.props = scene->props;
   std::size_t triangles = 0;
+  std::optional<MeshImprint> imprint = RobotImprint(robot, *scene, cell.T_world_cell, rng_seed);
+  MeshImprint unused(PointCloud{}, Vec3::Zero());  // for a robot that cannot be posed
   if (mesher == Mesher::kOpen3d) {
     cell.voxel_m = device.voxel_m;
-    auto surfaces = ScanAndMeshOpen3d(*scene, robot, options, device, cell.T_world_cell, rng_seed, rng, &cell.head_path_world);
+    auto surfaces = ScanAndMeshOpen3d(*scene, robot, options, device, cell.T_world_cell, rng_seed, rng,
+                                      &cell.head_path_world, imprint ? &*imprint : &unused);
     if (!surfaces.ok()) return surfaces.status().WithContext("simulating the headset's scan (open3d mesher)");
     cell.surfaces = std::move(*surfaces);
     for (const Surface& s : cell.surfaces) triangles += s.mesh.triangles.size();
-    cell.mesh_error_add_m =
-        MeshDisplacementAdd(robot, *scene, cell.T_world_cell, device, std::max(1, device.surface_updates), rng_seed);
+    if (imprint) cell.mesh_error_add_m = imprint->Add(SurfaceErrors(device, std::max(1, device.surface_updates), rng_seed));
   } else {
     cell.voxel_m = VoxelSize(options.fusion);
-    auto fused = ScanAndFuse(*scene, options, cell.T_world_cell, cell.voxel_m, rng_seed, rng, &cell.head_path_world);
+    auto fused = ScanAndFuse(*scene, options, cell.T_world_cell, cell.voxel_m, rng_seed, rng, &cell.head_path_world,
+                             imprint ? &*imprint : &unused);
     if (!fused.ok()) return fused.status().WithContext("simulating the headset's scan");
     triangles = fused->triangles.size();
     cell.surfaces = SplitIntoSurfaces(*fused, options.fusion.surface_chunk_m, options.scan.views * kSecondsPerView);
+    if (imprint) cell.mesh_error_add_m = imprint->Add();
   }
   if (triangles == 0)
     return Status::FailedPrecondition("simulated scan saw nothing within fusion.crop_radius_m = " +

@@ -44,6 +44,8 @@ struct RobustnessConfig {
   std::string heldout_robot = "sia10d";  // matched against the robot's name and URDF path
   int cells = 4;  // per robot and mesher (the same cells for every mesher)
   int seeds = 2;  // per seed family and cell
+  // Headset errors taken out of every cell (sim::LeaveOutErrors), to measure what each costs.
+  std::vector<std::string> without;
 };
 
 // The tracking experiment: robots as RobustnessConfig's, with its split.
@@ -174,8 +176,9 @@ Status TrackExperiment(const Config& config, Tables* tables);       // robots x 
 
 // One bench cell of `kind` (as MakeCells makes them) simulated from `seed` by `mesher`; the
 // model side is shared when given (the same robot and joints), else built.
+// leave_out: headset errors taken out (sim::LeaveOutErrors).
 Result<Cell> MakeCell(const RobotModel& robot, const std::string& kind, int index, std::uint64_t seed, sim::Mesher mesher,
-                      std::shared_ptr<const RobotSide> robot_side = nullptr);
+                      std::shared_ptr<const RobotSide> robot_side = nullptr, const std::vector<std::string>& leave_out = {});
 
 Status WriteReport(const Config& config, const Tables& tables, const std::string& command_line);
 

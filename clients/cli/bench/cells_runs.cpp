@@ -148,13 +148,14 @@ Result<std::vector<Cell>> MakeCells(const RobotModel& robot, const std::vector<s
 }
 
 Result<Cell> MakeCell(const RobotModel& robot, const std::string& kind, int index, std::uint64_t seed, sim::Mesher mesher,
-                      std::shared_ptr<const RobotSide> robot_side) {
+                      std::shared_ptr<const RobotSide> robot_side, const std::vector<std::string>& leave_out) {
   auto options = OptionsFor(kind, "small");
   if (!options.ok()) return options.status();
   std::mt19937_64 rng(seed);
   options->cell.joints = RandomJoints(robot, rng);
   options->seed_count = 0;  // the experiment draws its seeds by family
   options->fusion.mesher = mesher;
+  ARREF_RETURN_IF_ERROR(sim::LeaveOutErrors(leave_out, seed, &*options));
   auto sim = sim::SimulateCell(robot, *options, seed);
   if (!sim.ok()) return sim.status().WithContext("bench cell " + kind + " " + std::to_string(index) + " of " + robot.name());
   Cell cell{kind, "small", index, std::move(*sim), {}, std::move(robot_side)};

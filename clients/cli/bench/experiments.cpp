@@ -234,7 +234,7 @@ Status RobustnessExperiment(const Config& config, Tables* tables) {
       const std::uint64_t cell_seed = Mix(stream ^ Mix(std::hash<std::string>{}(robot.label)) ^ Mix(static_cast<std::uint64_t>(i) + 1));
       std::shared_ptr<const RobotSide> side;
       for (sim::Mesher mesher : meshers) {
-        auto cell = MakeCell(*robot.model, kind, i, cell_seed, mesher, side);
+        auto cell = MakeCell(*robot.model, kind, i, cell_seed, mesher, side, rc.without);
         if (!cell.ok()) return cell.status();
         side = cell->robot;
         cells.push_back(std::move(*cell));

@@ -87,6 +87,12 @@ struct DeviceVariation {
 // 0-1 cm and 0-0.5 deg; 0-6 patches of up to 5-30 cm; depth noise 4-12 mm; walks of 90-360
 // deg at 1-3 m.
 DeviceVariation DrawDeviceVariation(std::uint64_t rng_seed);
+// Takes some of a headset's errors out of a cell simulated from rng_seed, to measure what each
+// costs: "view-jitter" (each view's tracking error), "surface-errors" (kOpen3d: each surface's
+// head-pose error), "depth-noise" (down to 1 mm), "patches" (kOpen3d: no missing patches),
+// "quantisation" (kOpen3d: none). The rest of the device's variation stays as drawn.
+struct SimOptions;
+Status LeaveOutErrors(const std::vector<std::string>& errors, std::uint64_t rng_seed, SimOptions* options);
 
 // TSDF fusion of the depth images and extraction of a coarse mesh.
 struct FusionOptions {
@@ -153,9 +159,11 @@ struct SimulatedCell {
   std::vector<Vec3> head_path_world;
   Mesher mesher = Mesher::kOwn;
   DeviceVariation device;             // kOpen3d: the variation this cell's mesh was made with
-  // kOpen3d: how far the surfaces' own head-pose errors move the robot in the mesh (the ADD of
-  // the rigid motion that best explains them): what a fit against the true pose cannot beat.
-  // -1 where not measured (the own mesher, whose per-view errors are averaged in its TSDF).
+  // How far the headset's own errors move the robot in the mesh: each view's tracking error
+  // (averaged over the views that saw each part, as the fusion does) and, kOpen3d, each
+  // surface's head-pose error; the ADD of the gravity-aligned rigid motion that best explains,
+  // point to plane, where they put the robot's seen surface. What a fit against the true pose
+  // cannot beat. -1 where not measured (a robot that cannot be posed).
   double mesh_error_add_m = -1.0;
 };
 

@@ -144,10 +144,10 @@ Result<StreamStats> RunStream(const StreamSpec& spec) {
     }
     s.model_points += static_cast<double>(r.model_points) / simulator.frame_count();
     const double add_mm = 1000 * ComparePoses(r.T_world_base, f.T_world_base_true, add_points).add_m;
-    spdlog::debug("track frame {} t {:.3f}: {} ADD {:.1f} mm, measured {:.1f} mm, agreement {:.2f}, {} model / {} depth points, {:.1f} ms",
+    spdlog::debug("track frame {} t {:.3f}: {} ADD {:.1f} mm, measured {:.1f} mm, agreement {:.2f} (filter {:.2f}), {} model / {} depth points, {:.1f} ms",
                   i, f.true_time_s, TrackStateName(r.state), add_mm,
                   r.T_world_base_measured ? 1000 * ComparePoses(*r.T_world_base_measured, f.T_world_base_true, add_points).add_m : -1.0,
-                  r.agreement, r.model_points, r.depth_points, r.total_ms);
+                  r.agreement, r.agreement_filtered, r.model_points, r.depth_points, r.total_ms);
     // Recovered: the first frame after the jump from which kSettledFrames in a row are within 10 mm.
     if (f.after_jump && !recovered) {
       if (add_mm >= 10) run_start = -1, run = 0;

@@ -53,7 +53,10 @@ struct Measurement {
   Mat4 covariance = Mat4::Identity();
   double agreement = 0.0;
   double coverage = 0.0;  // agreeing pixels of all visible model pixels with a depth
-  double start_agreement = 0.0;  // the agreement of the pose the fit started from
+  // What the tracker decides on: the agreement, or in a wrapped frame (where depth behind the
+  // model may be an occluder aliased there) the coverage.
+  double support = 0.0;
+  double start_support = 0.0;  // the support of the pose the fit started from
   std::size_t model_points = 0, depth_points = 0;
 };
 
@@ -96,7 +99,7 @@ struct Tracker::Impl {
   Measurement Measure(const DepthFrame& f, const Iso3& T0, const std::vector<double>& distances, int iterations,
                       TrackResult* out) const;
   PointCloud DepthPoints(const DepthFrame& f, const ModelView& view, const Iso3& T_world_base, const Aabb& crop) const;
-  struct Agreement { double agreement = 0.0, coverage = 0.0; };
+  struct Agreement { double agreement = 0.0, coverage = 0.0, support = 0.0; };
   Agreement AgreementAt(const DepthFrame& f, const ModelView& view, const Iso3& T_world_base) const;
   bool Reacquires(const Measurement& m) const {
     return m.agreement >= settings.min_reacquire_agreement && m.coverage >= settings.min_reacquire_coverage;
@@ -154,7 +157,7 @@ Tracker::Impl::Agreement Tracker::Impl::AgreementAt(const DepthFrame& f, const M
                                                     const Iso3& T_world_base) const {
   const DepthIntrinsics& c = f.intrinsics;
   const Eigen::Isometry3f T_camera_base = (f.T_world_camera.inverse() * T_world_base).cast<float>();
-  std::size_t agree = 0, through = 0, occluded = 0;
+  std::size_t agree = 0, through = 0, occluded = 0, ambiguous = 0;
   for (const Vec3f& p : view.points_base.points) {
     const Vec3f q = T_camera_base * p;
     if (q.z() <= 0.05f) continue;
@@ -165,12 +168,16 @@ Tracker::Impl::Agreement Tracker::Impl::AgreementAt(const DepthFrame& f, const M
     if (d <= 0) continue;
     const float tol = static_cast<float>(settings.agree_m + settings.agree_range_fraction * q.z());
     if (std::abs(d - q.z()) < tol) ++agree;
-    else if (d > q.z()) ++through;
+    // A wrapping sensor cannot tell depth behind the model from an occluder more than half a
+    // wrap in front of it (aliased behind): only when that nearer alias would lie behind the
+    // camera is the model seen through.
+    else if (d > q.z()) ++(f.wrap_m > 0 && d - f.wrap_m > 0 ? ambiguous : through);
     else ++occluded;
   }
   Agreement a;
   a.agreement = agree + through ? static_cast<double>(agree) / static_cast<double>(agree + through) : 0.0;
-  a.coverage = agree ? static_cast<double>(agree) / static_cast<double>(agree + through + occluded) : 0.0;
+  a.coverage = agree ? static_cast<double>(agree) / static_cast<double>(agree + through + occluded + ambiguous) : 0.0;
+  a.support = f.wrap_m > 0 ? a.coverage : a.agreement;
   return a;
 }
 
@@ -223,7 +230,7 @@ Measurement Tracker::Impl::Measure(const DepthFrame& f, const Iso3& T0, const st
   LapTimer lap;
   const ModelView view = RenderModel(f, T0);
   m.model_points = view.points_base.size();
-  m.start_agreement = AgreementAt(f, view, T0).agreement;
+  m.start_support = AgreementAt(f, view, T0).support;
   Aabb crop = view.bounds_base.Grown(static_cast<float>(settings.crop_margin_m));
   crop.min.z() = view.bounds_base.min.z() + static_cast<float>(settings.floor_clearance_m);
   PointCloud source = DepthPoints(f, view, T0, crop);
@@ -241,9 +248,9 @@ Measurement Tracker::Impl::Measure(const DepthFrame& f, const Iso3& T0, const st
   // The base stays gravity-aligned: 4-DoF steps keep roll and pitch as the prediction had them.
   m.T_world_base = StateToPose(PoseToState(fit->T_target_source.inverse()));
   const Agreement a = AgreementAt(f, view, m.T_world_base);
-  m.agreement = a.agreement, m.coverage = a.coverage;
+  m.agreement = a.agreement, m.coverage = a.coverage, m.support = a.support;
   m.covariance = Covariance(source, target, m.T_world_base.inverse());
-  m.fits = m.agreement >= settings.min_agreement;
+  m.fits = m.support >= settings.min_agreement;
   out->icp_ms += lap.Lap();
   return m;
 }
@@ -288,8 +295,8 @@ std::optional<Iso3> Tracker::Impl::GridSearch(const DepthFrame& f, const std::ve
   for (std::size_t i = 0; i < std::min<std::size_t>(3, candidates.size()); ++i) {
     const Measurement m = Measure(f, StateToPose(PoseToState(candidates[i].T)), {0.06, 0.025}, settings.icp_iterations, out);
     spdlog::debug("tracker: search candidate {}: agreement {:.2f}, coverage {:.2f}", i, m.agreement, m.coverage);
-    if (Reacquires(m) && m.agreement > best_agreement)
-      best = m.T_world_base, best_agreement = m.agreement;
+    if (Reacquires(m) && m.support > best_agreement)
+      best = m.T_world_base, best_agreement = m.support;
   }
   return best;
 }
@@ -352,7 +359,7 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
   auto restart = [&](const Measurement& m) {
     I.filter.Reset(PoseToState(m.T_world_base), m.covariance, frame.time_s);
     out.T_world_base_measured = m.T_world_base;
-    out.agreement = m.agreement;
+    out.agreement = m.support;
     return finish(TrackState::kReacquired);
   };
 
@@ -360,32 +367,32 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
   const Iso3 predicted = tracking ? StateToPose(I.filter.state()) : *I.seed;
   ++out.hypotheses;
   const Measurement m = I.Measure(frame, predicted, tracking ? s.icp_distances_m : wide, s.icp_iterations, &out);
-  out.model_points = m.model_points, out.depth_points = m.depth_points, out.agreement = m.agreement;
+  out.model_points = m.model_points, out.depth_points = m.depth_points, out.agreement = m.support;
   // How well the filter explains this frame: at its pose, or by this frame's fit if it takes it.
   auto in_gate = [&](const Measurement& x) {
     return x.fits && I.filter.Mahalanobis2(PoseToState(x.T_world_base), x.covariance, frame.time_s) <= s.filter.gate_chi2;
   };
-  double explained = m.start_agreement;
+  double explained = m.start_support;
   if (tracking && in_gate(m)) {
-    explained = std::max(explained, m.agreement);
+    explained = std::max(explained, m.support);
   } else if (tracking && explained < 1.0) {
     // The fit left the filter's basin (or failed): the filter's pose refined locally, so that the
     // frame's own camera-pose error (which shifts a thin arm's silhouette by pixels) counts
     // against neither side.
     ++out.hypotheses;
     const Measurement local = I.Measure(frame, predicted, {s.icp_distances_m.back()}, s.icp_iterations, &out);
-    if (in_gate(local)) explained = std::max(explained, local.agreement);
+    if (in_gate(local)) explained = std::max(explained, local.support);
   }
   out.agreement_filtered = explained;
   auto clearly_better = [&](const Measurement& x) {
-    return I.Reacquires(x) && x.agreement >= explained + s.rereference_margin;
+    return I.Reacquires(x) && x.support >= explained + s.rereference_margin;
   };
   auto adopt_candidate = [&](const Measurement& c) {
     I.filter = std::move(*I.candidate);
     I.candidate.reset();
     I.seed.reset();
     out.T_world_base_measured = c.T_world_base;
-    out.agreement = c.agreement;
+    out.agreement = c.support;
     return finish(TrackState::kReacquired);
   };
   // A pose found on an earlier frame stays a candidate while it explains each frame clearly
@@ -397,7 +404,7 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
                                  FilterVerdict::kAccepted) {
       if (++I.candidate_frames >= s.confirm_frames) {
         spdlog::info("tracker: re-referenced after {} frames agreeing {:.2f} against the filter's {:.2f}",
-                     I.candidate_frames, c.agreement, explained);
+                     I.candidate_frames, c.support, explained);
         return adopt_candidate(c);
       }
     } else {
@@ -411,7 +418,7 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
   if (m.model_points < s.min_model_points && !jumped) return finish(TrackState::kNoRobot);
   // No fit, but the filter's pose still explains the frame (the depth near it too sparse or
   // mostly an occluder for ICP): the pose holds, and nothing is searched.
-  if (!m.fits && tracking && !jumped && m.start_agreement >= s.min_reacquire_agreement) return finish(TrackState::kTracking);
+  if (!m.fits && tracking && !jumped && m.start_support >= s.min_reacquire_agreement) return finish(TrackState::kTracking);
   if (m.fits) {
     out.T_world_base_measured = m.T_world_base;
     if (!tracking) {
@@ -445,7 +452,7 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
     I.candidate_frames = 1;
     spdlog::info("tracker: candidate {}, {:.3f} m from the filter's pose{}, agreeing {:.2f} against {:.2f}", how,
                  (x.T_world_base.translation() - predicted.translation()).norm(), jumped ? " (the camera jumped)" : "",
-                 x.agreement, explained);
+                 x.support, explained);
     if (I.candidate_frames >= s.confirm_frames) return adopt_candidate(x);
     return finish(TrackState::kLost);
   };

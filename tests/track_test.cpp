@@ -137,8 +137,31 @@ TEST(ModelCaster, MatchesTheRayCastOfThePosedMesh) {
 
 // Runs the tracker over a simulated stream as the server does: joint states through the
 // history on the estimated clock offset, the tracker seeded off the truth.
+TEST(PoseFilter, ConsistentButUnsupportedMeasurementsMakeNoJump) {
+  PoseFilter f({.drift_m_per_sqrt_s = 0.001, .drift_rad_per_sqrt_s = 0.0005, .gate_chi2 = 18.5, .jump_after = 3,
+                .min_sigma_m = 0.0, .min_sigma_rad = 0.0});
+  const Vec4 truth(0.5, 0.2, 0.1, 0.3);
+  const Mat4 R = Vec4(2.5e-5, 2.5e-5, 2.5e-5, 2.5e-5).asDiagonal();
+  double t = 0;
+  f.Update(truth, R, t);
+  for (int i = 0; i < 20; ++i) EXPECT_EQ(f.Update(truth, R, t += 0.2), FilterVerdict::kAccepted);
+  // A wrong basin 0.2 m off, the same on every frame, that explains the frames no better.
+  const Vec4 basin = truth + Vec4(0.2, 0.0, 0.0, 0.05);
+  for (int i = 0; i < 10; ++i) EXPECT_EQ(f.Update(basin, R, t += 0.2, false), FilterVerdict::kRejected);
+  EXPECT_EQ(f.rejected_in_a_row(), 0);
+  EXPECT_LT((f.state() - truth).norm(), 1e-9);
+  // An unsupported one breaks a supported run; three supported ones in a row are a jump.
+  EXPECT_EQ(f.Update(basin, R, t += 0.2, true), FilterVerdict::kRejected);
+  EXPECT_EQ(f.Update(basin, R, t += 0.2, false), FilterVerdict::kRejected);
+  EXPECT_EQ(f.Update(basin, R, t += 0.2, true), FilterVerdict::kRejected);
+  EXPECT_EQ(f.Update(basin, R, t += 0.2, true), FilterVerdict::kRejected);
+  EXPECT_EQ(f.Update(basin, R, t += 0.2, true), FilterVerdict::kJump);
+  EXPECT_LT((f.state() - basin).norm(), 1e-9);
+}
+
 struct StreamOutcome {
   int scored = 0, within_10mm = 0, frames = 0;
+  int rereferences_before_jump = 0;  // jumps and re-acquisitions after the first frame while the world had not moved
   double recovery_s = -1;
 };
 
@@ -171,6 +194,8 @@ StreamOutcome RunStream(std::shared_ptr<const RobotModel> robot, sim::TrackSimOp
     EXPECT_TRUE(r.ok()) << r.status().ToString();
     if (!r.ok()) break;
     ++out.frames;
+    if (i > 0 && !f->after_jump && (r->state == TrackState::kJump || r->state == TrackState::kReacquired))
+      ++out.rereferences_before_jump;
     const double add = ComparePoses(r->T_world_base, f->T_world_base_true, points.points).add_m;
     if (f->after_jump && !recovered && add < 0.010) {
       recovered = true;
@@ -207,6 +232,23 @@ TEST(Tracker, UnwrapsAhatDepth) {
   options.jump_at_s = 100.0;  // none
   const StreamOutcome o = RunStream(robot, options, 12);
   ASSERT_GT(o.scored, 60);
+  EXPECT_GE(o.within_10mm, 0.9 * o.scored) << o.within_10mm << " of " << o.scored;
+  EXPECT_EQ(o.rereferences_before_jump, 0);
+}
+
+// The world never moves: every frame stays with the first acquisition, at the long-throw
+// camera's own rate (5 fps) where a frame's camera moves most between frames.
+TEST(Tracker, NeverReReferencesAStillWorld) {
+  auto robot = Builtin();
+  ASSERT_TRUE(robot);
+  sim::TrackSimOptions options;
+  options.duration_s = 40.0;
+  options.fps = 5.0;
+  options.jump_at_s = 1000.0;  // none
+  const StreamOutcome o = RunStream(robot, options, 21);
+  EXPECT_EQ(o.frames, 200);
+  ASSERT_GT(o.scored, 150);
+  EXPECT_EQ(o.rereferences_before_jump, 0);
   EXPECT_GE(o.within_10mm, 0.9 * o.scored) << o.within_10mm << " of " << o.scored;
 }
 

@@ -228,8 +228,8 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
       ->check(CLI::Range(1, 1000))->capture_default_str();
   cmd->add_option("--track-kinds", args->track.kinds, "Track: frame kinds (long-throw, ahat)")
       ->delimiter(',')->check(CLI::IsMember({"long-throw", "ahat"}));
-  cmd->add_option("--track-streams", args->track.streams, "Track: streams per robot and frame kind")
-      ->check(CLI::Range(1, 100))->capture_default_str();
+  cmd->add_option("--track-streams", args->track.streams, "Track: streams per robot and frame kind (0: only the long streams)")
+      ->check(CLI::Range(0, 100))->capture_default_str();
   cmd->add_option("--track-seconds", args->track.seconds, "Track: seconds per stream")->check(CLI::Range(2.0, 3600.0))->capture_default_str();
   cmd->add_option("--track-baseline-frames", args->track.baseline_frames,
                   "Track: frames per long-throw stream also registered the one-shot way (PCL ICP), 0: none")
@@ -238,6 +238,8 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
       ->check(CLI::Range(0.0, 120.0))->capture_default_str();
   cmd->add_option("--track-long-fps", args->track.long_fps, "Track: frame rate of the long stream")
       ->check(CLI::Range(1.0, 60.0))->capture_default_str();
+  cmd->add_option("--track-long-streams", args->track.long_streams, "Track: long streams per robot (seeds)")
+      ->check(CLI::Range(1, 100))->capture_default_str();
   cmd->callback([args, exit_code, cmd] {
     args->command_line = "arref bench";
     for (const auto& o : cmd->get_options())

@@ -69,13 +69,17 @@ double PoseFilter::Mahalanobis2(const Vec4& z, const Mat4& R, double time_s) con
   return y.dot(S.ldlt().solve(y));
 }
 
-FilterVerdict PoseFilter::Update(const Vec4& z, const Mat4& R, double time_s) {
+FilterVerdict PoseFilter::Update(const Vec4& z, const Mat4& R, double time_s, bool jump_evidence) {
   if (!initialised_) {
     Reset(z, R, time_s);
     return FilterVerdict::kInitialised;
   }
   const Mat4 Rf = Floored(R);
   if (Mahalanobis2(z, R, time_s) > settings_.gate_chi2) {
+    if (!jump_evidence) {
+      pending_.clear();
+      return FilterVerdict::kRejected;
+    }
     // A new world agrees with itself: each rejected measurement within the gate of the last.
     if (!pending_.empty()) {
       const Pending& last = pending_.back();

@@ -53,6 +53,10 @@ struct Measurement {
   Mat4 covariance = Mat4::Identity();
   double agreement = 0.0;
   double coverage = 0.0;  // agreeing pixels of all visible model pixels with a depth
+  // What the tracker decides on: the agreement, or in a wrapped frame (where depth behind the
+  // model may be an occluder aliased there) the coverage.
+  double support = 0.0;
+  double start_support = 0.0;  // the support of the pose the fit started from
   std::size_t model_points = 0, depth_points = 0;
 };
 
@@ -77,6 +81,14 @@ struct Tracker::Impl {
   std::optional<Iso3> last_T_world_base;
   std::optional<std::pair<double, Iso3>> previous_camera;  // the last frame's time and camera pose
   int lost_frames = 0;
+  // A pose found while lost that has yet to explain confirm_frames frames clearly better than
+  // the filter before it replaces it, filtered on its own.
+  std::optional<PoseFilter> candidate;
+  int candidate_frames = 0;
+  // Where the robot is if the world moved with the camera at its last jump: the camera's step
+  // across that frame applied to the filtered pose. It stays put in the new world, while a
+  // guess from the last fitted frame's camera drifts off with the wearer's walk.
+  std::optional<Iso3> jump_guess;
   bool CameraJumped(const DepthFrame& f) const;
 
   int StrideFor(const DepthIntrinsics& c) const {
@@ -87,8 +99,8 @@ struct Tracker::Impl {
   Measurement Measure(const DepthFrame& f, const Iso3& T0, const std::vector<double>& distances, int iterations,
                       TrackResult* out) const;
   PointCloud DepthPoints(const DepthFrame& f, const ModelView& view, const Iso3& T_world_base, const Aabb& crop) const;
-  // Sets m->agreement and m->coverage at m->T_world_base.
-  void Agreement(const DepthFrame& f, const ModelView& view, Measurement* m) const;
+  struct Agreement { double agreement = 0.0, coverage = 0.0, support = 0.0; };
+  Agreement AgreementAt(const DepthFrame& f, const ModelView& view, const Iso3& T_world_base) const;
   bool Reacquires(const Measurement& m) const {
     return m.agreement >= settings.min_reacquire_agreement && m.coverage >= settings.min_reacquire_coverage;
   }
@@ -141,10 +153,11 @@ PointCloud Tracker::Impl::DepthPoints(const DepthFrame& f, const ModelView& view
 // The fraction of the model's visible pixels whose depth agrees with the model moved to
 // T_world_base, of those that agree or that the depth sees through (a depth nearer than the
 // model is an occluder, and says nothing).
-void Tracker::Impl::Agreement(const DepthFrame& f, const ModelView& view, Measurement* m) const {
+Tracker::Impl::Agreement Tracker::Impl::AgreementAt(const DepthFrame& f, const ModelView& view,
+                                                    const Iso3& T_world_base) const {
   const DepthIntrinsics& c = f.intrinsics;
-  const Eigen::Isometry3f T_camera_base = (f.T_world_camera.inverse() * m->T_world_base).cast<float>();
-  std::size_t agree = 0, through = 0, occluded = 0;
+  const Eigen::Isometry3f T_camera_base = (f.T_world_camera.inverse() * T_world_base).cast<float>();
+  std::size_t agree = 0, through = 0, occluded = 0, ambiguous = 0;
   for (const Vec3f& p : view.points_base.points) {
     const Vec3f q = T_camera_base * p;
     if (q.z() <= 0.05f) continue;
@@ -155,11 +168,17 @@ void Tracker::Impl::Agreement(const DepthFrame& f, const ModelView& view, Measur
     if (d <= 0) continue;
     const float tol = static_cast<float>(settings.agree_m + settings.agree_range_fraction * q.z());
     if (std::abs(d - q.z()) < tol) ++agree;
-    else if (d > q.z()) ++through;
+    // A wrapping sensor cannot tell depth behind the model from an occluder more than half a
+    // wrap in front of it (aliased behind): only when that nearer alias would lie behind the
+    // camera is the model seen through.
+    else if (d > q.z()) ++(f.wrap_m > 0 && d - f.wrap_m > 0 ? ambiguous : through);
     else ++occluded;
   }
-  m->agreement = agree + through ? static_cast<double>(agree) / static_cast<double>(agree + through) : 0.0;
-  m->coverage = agree ? static_cast<double>(agree) / static_cast<double>(agree + through + occluded) : 0.0;
+  Agreement a;
+  a.agreement = agree + through ? static_cast<double>(agree) / static_cast<double>(agree + through) : 0.0;
+  a.coverage = agree ? static_cast<double>(agree) / static_cast<double>(agree + through + occluded + ambiguous) : 0.0;
+  a.support = f.wrap_m > 0 ? a.coverage : a.agreement;
+  return a;
 }
 
 // ICP's 4-DoF covariance at the fit, mapped from its perturbation of T_base_world to the
@@ -211,6 +230,7 @@ Measurement Tracker::Impl::Measure(const DepthFrame& f, const Iso3& T0, const st
   LapTimer lap;
   const ModelView view = RenderModel(f, T0);
   m.model_points = view.points_base.size();
+  m.start_support = AgreementAt(f, view, T0).support;
   Aabb crop = view.bounds_base.Grown(static_cast<float>(settings.crop_margin_m));
   crop.min.z() = view.bounds_base.min.z() + static_cast<float>(settings.floor_clearance_m);
   PointCloud source = DepthPoints(f, view, T0, crop);
@@ -227,9 +247,10 @@ Measurement Tracker::Impl::Measure(const DepthFrame& f, const Iso3& T0, const st
   if (!fit.ok() || fit->correspondences < settings.min_model_points / 2) return m;
   // The base stays gravity-aligned: 4-DoF steps keep roll and pitch as the prediction had them.
   m.T_world_base = StateToPose(PoseToState(fit->T_target_source.inverse()));
-  Agreement(f, view, &m);
+  const Agreement a = AgreementAt(f, view, m.T_world_base);
+  m.agreement = a.agreement, m.coverage = a.coverage, m.support = a.support;
   m.covariance = Covariance(source, target, m.T_world_base.inverse());
-  m.fits = m.agreement >= settings.min_agreement;
+  m.fits = m.support >= settings.min_agreement;
   out->icp_ms += lap.Lap();
   return m;
 }
@@ -273,8 +294,9 @@ std::optional<Iso3> Tracker::Impl::GridSearch(const DepthFrame& f, const std::ve
   double best_agreement = -1;
   for (std::size_t i = 0; i < std::min<std::size_t>(3, candidates.size()); ++i) {
     const Measurement m = Measure(f, StateToPose(PoseToState(candidates[i].T)), {0.06, 0.025}, settings.icp_iterations, out);
-    if (Reacquires(m) && m.agreement > best_agreement)
-      best = m.T_world_base, best_agreement = m.agreement;
+    spdlog::debug("tracker: search candidate {}: agreement {:.2f}, coverage {:.2f}", i, m.agreement, m.coverage);
+    if (Reacquires(m) && m.support > best_agreement)
+      best = m.T_world_base, best_agreement = m.support;
   }
   return best;
 }
@@ -289,7 +311,7 @@ Result<Tracker> Tracker::Create(std::shared_ptr<const RobotModel> robot, Tracker
   if (settings.icp_distances_m.empty()) return Status::InvalidArgument("tracker: icp_distances_m is empty");
   ARREF_ASSIGN_OR_RETURN(ModelCaster caster, ModelCaster::Create(*robot));
   auto impl = std::make_unique<Impl>(Impl{robot, settings, std::move(caster), robot->ActuatedJoints(),
-                                          PoseFilter(settings.filter), {}, {}, {}, {}, 0});
+                                          PoseFilter(settings.filter), {}, {}, {}, {}, 0, {}, 0, {}});
   return Tracker(std::move(impl));
 }
 
@@ -298,6 +320,8 @@ void Tracker::Seed(const Iso3& T_world_base) {
   impl_->filter.Clear();
   impl_->last_T_world_base.reset();
   impl_->last_T_world_camera.reset();
+  impl_->candidate.reset();
+  impl_->jump_guess.reset();
 }
 
 bool Tracker::seeded() const { return impl_->seed.has_value() || impl_->filter.initialised(); }
@@ -327,6 +351,7 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
       I.last_T_world_camera = frame.T_world_camera;
       I.lost_frames = 0;
     }
+    if (state == TrackState::kReacquired || state == TrackState::kJump) I.candidate.reset(), I.jump_guess.reset();
     I.previous_camera = {frame.time_s, frame.T_world_camera};
     out.total_ms = MsSince(start);
     return out;
@@ -334,7 +359,7 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
   auto restart = [&](const Measurement& m) {
     I.filter.Reset(PoseToState(m.T_world_base), m.covariance, frame.time_s);
     out.T_world_base_measured = m.T_world_base;
-    out.agreement = m.agreement;
+    out.agreement = m.support;
     return finish(TrackState::kReacquired);
   };
 
@@ -342,10 +367,58 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
   const Iso3 predicted = tracking ? StateToPose(I.filter.state()) : *I.seed;
   ++out.hypotheses;
   const Measurement m = I.Measure(frame, predicted, tracking ? s.icp_distances_m : wide, s.icp_iterations, &out);
-  out.model_points = m.model_points, out.depth_points = m.depth_points, out.agreement = m.agreement;
+  out.model_points = m.model_points, out.depth_points = m.depth_points, out.agreement = m.support;
+  // How well the filter explains this frame: at its pose, or by this frame's fit if it takes it.
+  auto in_gate = [&](const Measurement& x) {
+    return x.fits && I.filter.Mahalanobis2(PoseToState(x.T_world_base), x.covariance, frame.time_s) <= s.filter.gate_chi2;
+  };
+  double explained = m.start_support;
+  if (tracking && in_gate(m)) {
+    explained = std::max(explained, m.support);
+  } else if (tracking && explained < 1.0) {
+    // The fit left the filter's basin (or failed): the filter's pose refined locally, so that the
+    // frame's own camera-pose error (which shifts a thin arm's silhouette by pixels) counts
+    // against neither side.
+    ++out.hypotheses;
+    const Measurement local = I.Measure(frame, predicted, {s.icp_distances_m.back()}, s.icp_iterations, &out);
+    if (in_gate(local)) explained = std::max(explained, local.support);
+  }
+  out.agreement_filtered = explained;
+  auto clearly_better = [&](const Measurement& x) {
+    return I.Reacquires(x) && x.support >= explained + s.rereference_margin;
+  };
+  auto adopt_candidate = [&](const Measurement& c) {
+    I.filter = std::move(*I.candidate);
+    I.candidate.reset();
+    I.seed.reset();
+    out.T_world_base_measured = c.T_world_base;
+    out.agreement = c.support;
+    return finish(TrackState::kReacquired);
+  };
+  // A pose found on an earlier frame stays a candidate while it explains each frame clearly
+  // better than the filter, and replaces the filter after confirm_frames such frames.
+  if (I.candidate) {
+    ++out.hypotheses;
+    const Measurement c = I.Measure(frame, StateToPose(I.candidate->state()), s.icp_distances_m, s.icp_iterations, &out);
+    if (clearly_better(c) && I.candidate->Update(PoseToState(c.T_world_base), c.covariance, frame.time_s, false) ==
+                                 FilterVerdict::kAccepted) {
+      if (++I.candidate_frames >= s.confirm_frames) {
+        spdlog::info("tracker: re-referenced after {} frames agreeing {:.2f} against the filter's {:.2f}",
+                     I.candidate_frames, c.support, explained);
+        return adopt_candidate(c);
+      }
+    } else {
+      I.candidate.reset();
+    }
+  }
   const bool jumped = I.CameraJumped(frame);
+  if (jumped && tracking && I.previous_camera)
+    I.jump_guess = StateToPose(PoseToState(frame.T_world_camera * I.previous_camera->second.inverse() * predicted));
   // Out of view where the filter says; after a camera jump, the world may have moved it.
   if (m.model_points < s.min_model_points && !jumped) return finish(TrackState::kNoRobot);
+  // No fit, but the filter's pose still explains the frame (the depth near it too sparse or
+  // mostly an occluder for ICP): the pose holds, and nothing is searched.
+  if (!m.fits && tracking && !jumped && m.start_support >= s.min_reacquire_agreement) return finish(TrackState::kTracking);
   if (m.fits) {
     out.T_world_base_measured = m.T_world_base;
     if (!tracking) {
@@ -353,37 +426,54 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
       I.seed.reset();
       return restart(m);
     }
-    const FilterVerdict v = I.filter.Update(PoseToState(m.T_world_base), m.covariance, frame.time_s);
+    // Rejected measurements become a world jump only while they explain the frames clearly better.
+    const FilterVerdict v = I.filter.Update(PoseToState(m.T_world_base), m.covariance, frame.time_s, clearly_better(m));
     return finish(v == FilterVerdict::kRejected ? TrackState::kRejected
                   : v == FilterVerdict::kJump   ? TrackState::kJump
                                                 : TrackState::kTracking);
   }
   ++I.lost_frames;
+  if (I.candidate) return finish(TrackState::kLost);  // being confirmed: no search meanwhile
   // Lost. If the world moved under a steady head, the robot is where the camera last saw it;
   // when the camera has not jumped, that guess is off by the head's motion, so it waits for a
   // second lost frame like the grid search.
   if (!jumped && I.lost_frames <= s.lost_frames_before_search) return finish(TrackState::kLost);
+  // A pose found now restarts at once only when there is no filter to replace (the first
+  // frames after a seed); otherwise it becomes a candidate if it explains the frame clearly better.
+  auto found = [&](const Measurement& x, const char* how) -> std::optional<TrackResult> {
+    if (!tracking) {
+      spdlog::info("tracker: acquired {}", how);
+      I.seed.reset();
+      return restart(x);
+    }
+    if (!clearly_better(x)) return std::nullopt;
+    I.candidate = PoseFilter(s.filter);
+    I.candidate->Reset(PoseToState(x.T_world_base), x.covariance, frame.time_s);
+    I.candidate_frames = 1;
+    spdlog::info("tracker: candidate {}, {:.3f} m from the filter's pose{}, agreeing {:.2f} against {:.2f}", how,
+                 (x.T_world_base.translation() - predicted.translation()).norm(), jumped ? " (the camera jumped)" : "",
+                 x.support, explained);
+    if (I.candidate_frames >= s.confirm_frames) return adopt_candidate(x);
+    return finish(TrackState::kLost);
+  };
   std::vector<Iso3> guesses = {predicted};
-  if (I.last_T_world_base && I.last_T_world_camera) {
-    const Iso3 relative =
-        StateToPose(PoseToState(frame.T_world_camera * I.last_T_world_camera->inverse() * *I.last_T_world_base));
+  std::optional<Iso3> relative = I.jump_guess;
+  if (!relative && I.last_T_world_base && I.last_T_world_camera)
+    relative = StateToPose(PoseToState(frame.T_world_camera * I.last_T_world_camera->inverse() * *I.last_T_world_base));
+  if (relative) {
     ++out.hypotheses;
-    const Measurement r = I.Measure(frame, relative, wide, s.icp_iterations, &out);
-    if (I.Reacquires(r)) {
-      spdlog::info("tracker: re-referenced from the camera's view, {:.3f} m from the prediction{}",
-                   (r.T_world_base.translation() - predicted.translation()).norm(), jumped ? " (the camera jumped)" : "");
-      I.seed.reset();
-      return restart(r);
-    }
-    guesses.push_back(relative);
+    const Measurement r = I.Measure(frame, *relative, wide, s.icp_iterations, &out);
+    spdlog::debug("tracker: the camera's view{}: agreement {:.2f}, coverage {:.2f}, {} model / {} depth points",
+                  I.jump_guess ? " at the jump" : "", r.agreement, r.coverage, r.model_points, r.depth_points);
+    if (I.Reacquires(r))
+      if (auto result = found(r, "from the camera's view")) return *result;
+    guesses.push_back(*relative);
   }
-  if (const auto found = I.GridSearch(frame, guesses, &out)) {
-    const Measurement refined = I.Measure(frame, *found, s.icp_distances_m, s.icp_iterations, &out);
-    if (I.Reacquires(refined)) {
-      spdlog::info("tracker: re-acquired by a search of {} poses", out.hypotheses);
-      I.seed.reset();
-      return restart(refined);
-    }
+  if (const auto pose = I.GridSearch(frame, guesses, &out)) {
+    const Measurement refined = I.Measure(frame, *pose, s.icp_distances_m, s.icp_iterations, &out);
+    spdlog::debug("tracker: search: agreement {:.2f}, coverage {:.2f}", refined.agreement, refined.coverage);
+    if (I.Reacquires(refined))
+      if (auto result = found(refined, fmt::format("by a search of {} poses", out.hypotheses).c_str())) return *result;
   }
   I.lost_frames = 0;  // the next search waits again
   return finish(TrackState::kLost);

@@ -56,6 +56,7 @@ struct TrackConfig {
   int baseline_frames = 8;    // per long-throw stream, the one-shot baseline
   double long_minutes = 10.0; // the long stream (0: none)
   double long_fps = 5.0;      // at the long-throw camera's real rate, to keep it affordable
+  int long_streams = 1;       // long streams per robot, each from a seed of its own
 };
 
 struct Config {

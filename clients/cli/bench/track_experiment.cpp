@@ -53,6 +53,9 @@ double Quantile(std::vector<double> v, double q) {
 
 struct StreamStats {
   int frames = 0, scored = 0, within = 0, scored_steady = 0, within_steady = 0, lost = 0, no_robot = 0;
+  // Re-references after the first frame: the filter's jumps and re-acquisitions, and those of
+  // them before the simulated jump (the world had not moved: a wrong one).
+  int jumps = 0, reacquired = 0, false_rereferences = 0;
   double model_points = 0;  // mean per frame
   double recovery_s = -1;  // < 0: no jump, or never recovered
   bool had_jump = false;
@@ -135,12 +138,16 @@ Result<StreamStats> RunStream(const StreamSpec& spec) {
     s.frame_ms.push_back(r.total_ms);
     if (r.state == TrackState::kLost) ++s.lost;
     if (r.state == TrackState::kNoRobot) ++s.no_robot;
+    if (i > 0 && (r.state == TrackState::kJump || r.state == TrackState::kReacquired)) {
+      ++(r.state == TrackState::kJump ? s.jumps : s.reacquired);
+      if (!f.after_jump) ++s.false_rereferences;
+    }
     s.model_points += static_cast<double>(r.model_points) / simulator.frame_count();
     const double add_mm = 1000 * ComparePoses(r.T_world_base, f.T_world_base_true, add_points).add_m;
-    spdlog::debug("track frame {} t {:.3f}: {} ADD {:.1f} mm, measured {:.1f} mm, agreement {:.2f}, {} model / {} depth points, {:.1f} ms",
+    spdlog::debug("track frame {} t {:.3f}: {} ADD {:.1f} mm, measured {:.1f} mm, agreement {:.2f} (filter {:.2f}), {} model / {} depth points, {:.1f} ms",
                   i, f.true_time_s, TrackStateName(r.state), add_mm,
                   r.T_world_base_measured ? 1000 * ComparePoses(*r.T_world_base_measured, f.T_world_base_true, add_points).add_m : -1.0,
-                  r.agreement, r.model_points, r.depth_points, r.total_ms);
+                  r.agreement, r.agreement_filtered, r.model_points, r.depth_points, r.total_ms);
     // Recovered: the first frame after the jump from which kSettledFrames in a row are within 10 mm.
     if (f.after_jump && !recovered) {
       if (add_mm >= 10) run_start = -1, run = 0;
@@ -198,6 +205,7 @@ Status TrackExperiment(const Config& config, Tables* tables) {
   for (const std::string& kind_name : tc.kinds) {
     ARREF_ASSIGN_OR_RETURN(const sim::FrameKind kind, sim::ParseFrameKind(kind_name));
     for (const BenchRobot& robot : robots) {
+      if (tc.streams == 0) break;
       StreamStats all;
       double worst_recovery = -1;
       bool unrecovered = false;
@@ -234,22 +242,35 @@ Status TrackExperiment(const Config& config, Tables* tables) {
     }
   }
   if (tc.long_minutes > 0) {
-    // Drift and memory: one long stream of the first robot at the long-throw camera's own rate.
-    StreamSpec spec;
-    spec.robot = robots.front().model;
-    spec.options.duration_s = 60.0 * tc.long_minutes;
-    spec.options.fps = tc.long_fps;
-    spec.seed = MixSeed(stream ^ 0x4C4F4E47ull);
-    spec.minutes = true;
-    ARREF_ASSIGN_OR_RETURN(const StreamStats s, RunStream(spec));
-    md << fmt::format("\n## A long stream: {} (long-throw), {:.0f} min at {:.0f} fps\n\n", robots.front().label,
-                      tc.long_minutes, tc.long_fps);
-    md << "| frames | within 10 mm % | steady % | ADD median first minute mm | ADD median last minute mm | ADD p95 last minute mm | "
-          "recovery s | RSS start MB | RSS end MB | frame ms median |\n|---|---|---|---|---|---|---|---|---|---|\n";
-    md << fmt::format("| {} | {} | {} | {} | {} | {} | {} | {:.1f} | {:.1f} | {} |\n", s.frames, Pct(s.within, s.scored),
-                      Pct(s.within_steady, s.scored_steady), Num(Quantile(s.add_first_min_mm, 0.5)),
-                      Num(Quantile(s.add_last_min_mm, 0.5)), Num(Quantile(s.add_last_min_mm, 0.95)),
-                      Num(s.recovery_s, "{:.2f}"), s.rss_start_mb, s.rss_end_mb, Num(Quantile(s.frame_ms, 0.5)));
+    // Drift and memory: long streams of every robot at the long-throw camera's own rate.
+    md << fmt::format("\n## Long streams: long-throw, {:.0f} min at {:.0f} fps, {} per robot\n\n", tc.long_minutes, tc.long_fps,
+                      tc.long_streams);
+    md << "re-references: the filter's jumps / re-acquisitions after the first frame, and how many of them came before the "
+          "simulated jump (wrong ones).\n\n";
+    md << "| robot | stream | frames | within 10 mm % | steady % | ADD median first minute mm | ADD median last minute mm | "
+          "ADD p95 last minute mm | ADD max last minute mm | recovery s | jumps / re-acquisitions (before the jump) | "
+          "RSS start MB | RSS end MB | frame ms median |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
+    for (const BenchRobot& robot : robots)
+      for (int k = 0; k < tc.long_streams; ++k) {
+        StreamSpec spec;
+        spec.robot = robot.model;
+        spec.options.duration_s = 60.0 * tc.long_minutes;
+        spec.options.fps = tc.long_fps;
+        spec.seed = MixSeed(stream ^ 0x4C4F4E47ull ^ MixSeed(std::hash<std::string>{}(robot.label) + static_cast<std::uint64_t>(k)));
+        spec.minutes = true;
+        ARREF_ASSIGN_OR_RETURN(const StreamStats s, RunStream(spec));
+        const double max_last = s.add_last_min_mm.empty()
+                                    ? std::nan("")
+                                    : *std::max_element(s.add_last_min_mm.begin(), s.add_last_min_mm.end());
+        spdlog::info("bench: track long {} stream {}: {}/{} within 10 mm, last minute median {:.1f} mm, {} jumps, {} re-acquisitions",
+                     robot.label, k, s.within, s.scored, Quantile(s.add_last_min_mm, 0.5), s.jumps, s.reacquired);
+        md << fmt::format("| {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} / {} ({}) | {:.1f} | {:.1f} | {} |\n", robot.label, k,
+                          s.frames, Pct(s.within, s.scored), Pct(s.within_steady, s.scored_steady),
+                          Num(Quantile(s.add_first_min_mm, 0.5)), Num(Quantile(s.add_last_min_mm, 0.5)),
+                          Num(Quantile(s.add_last_min_mm, 0.95)), Num(max_last), Num(s.recovery_s, "{:.2f}"), s.jumps,
+                          s.reacquired, s.false_rereferences, s.rss_start_mb, s.rss_end_mb, Num(Quantile(s.frame_ms, 0.5)));
+        md.flush();
+      }
   }
   tables->notes.push_back("track: see track.md (" + config.robustness.split + " split)");
   spdlog::info("bench: track table in {}", path);

@@ -45,8 +45,10 @@ class PoseFilter {
   bool initialised() const { return initialised_; }
   void Reset(const Vec4& state, const Mat4& covariance, double time_s);
   void Clear() { initialised_ = false; pending_.clear(); }
-  // Predicts to time_s and fuses z (covariance R).
-  FilterVerdict Update(const Vec4& z, const Mat4& R, double time_s);
+  // Predicts to time_s and fuses z (covariance R). A rejected z that is not `jump_evidence`
+  // (the caller found it explains the frame no better than the state does) ends the rejected
+  // run instead of joining it: consistent but unsupported measurements never make a jump.
+  FilterVerdict Update(const Vec4& z, const Mat4& R, double time_s, bool jump_evidence = true);
   // The state predicted to time_s (covariance grown by the drift since the last update).
   Mat4 CovarianceAt(double time_s) const;
   const Vec4& state() const { return state_; }

@@ -42,6 +42,13 @@ struct TrackerSettings {
   // ... and cover at least this share of the visible model pixels (the rest occluded): a model
   // placed on the wrong object agrees only where that object happens to lie.
   double min_reacquire_coverage = 0.5;
+  // A pose other than the filter's (a world jump, a re-acquisition) replaces it only when it
+  // agrees with at least this much more of the frame than the filter's own explanation does
+  // (its pose, or this frame's fit when the filter accepts it), on `confirm_frames` frames in a
+  // row: a wrong basin next to the robot explains the frame about as well as the right pose,
+  // a moved world leaves the filter's pose explaining little.
+  double rereference_margin = 0.15;
+  int confirm_frames = 3;
   std::size_t min_model_points = 60;
   // Frames with a lost fit before re-acquisition when the camera has not jumped (one lost frame
   // may be a hand in front of the sensor).
@@ -70,6 +77,7 @@ struct TrackResult {
   Mat4 covariance = Mat4::Identity();    // of (x, y, z, yaw), m^2 and rad^2
   std::optional<Iso3> T_world_base_measured;  // this frame's registration, when it fit
   double agreement = 0.0;         // fraction of visible model pixels the depth agrees with
+  double agreement_filtered = 0.0;  // the same for the filter's explanation of this frame
   std::size_t model_points = 0;
   std::size_t depth_points = 0;
   int hypotheses = 0;             // poses tried (1 when tracking)

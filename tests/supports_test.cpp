@@ -1,8 +1,6 @@
 // FindSupports: the heights of horizontal surfaces an upright robot can stand on.
 #include <gtest/gtest.h>
 
-#include <cmath>
-
 #include "arref/scene/sampling.h"
 #include "arref/scene/supports.h"
 
@@ -45,24 +43,6 @@ TEST(Supports, OnlyUpFacingPointsNearTheAxisCount) {
   search.centre = Vec3(5, 5, 0);
   EXPECT_TRUE(FindSupports(down, search).empty());
   EXPECT_TRUE(FindSupports(PointCloud{}, search).empty());
-}
-
-// A fused mesh rounds the concave corner where a base meets the floor: a rim of faces that still
-// point up, a centimetre or two above it. The floor's height must not lean towards them.
-TEST(Supports, HeightIgnoresTheRaisedRimOfAFusedCorner) {
-  TriangleMesh m;
-  AddSquare(&m, 0, 0, 0.0, 2.0);  // the floor
-  for (int i = 0; i < 8; ++i) {   // the rim: small up-facing patches 8-25 mm above it
-    const double a = i * 0.785;
-    AddSquare(&m, 0.3 * std::cos(a), 0.3 * std::sin(a), 0.008 + 0.0025 * i, 0.25);
-  }
-  const PointCloud cloud = SampleSurface(m, 40000, 5);
-  SupportSearch search;
-  search.radius_m = 1.0;
-  const std::vector<Support> supports = FindSupports(cloud, search);
-  ASSERT_FALSE(supports.empty());
-  // A plain mean of the peak's bins gives about 3 mm here.
-  EXPECT_NEAR(supports[0].z, 0.0, 0.001);
 }
 
 }  // namespace

@@ -18,28 +18,6 @@ std::vector<double> UpFacingHeights(const PointCloud& scene, const SupportSearch
   return z;
 }
 
-std::size_t PointsBetween(const std::vector<double>& z, double lo, double hi) {
-  return static_cast<std::size_t>(std::count_if(z.begin(), z.end(), [&](double v) { return v >= lo && v < hi; }));
-}
-
-// The support's height from the points of its peak and its neighbours' bins (a surface's noise
-// spreads it over two or three): their median, then the mean of those within a quarter bin of
-// it. A plain mean leans up by a millimetre or two, towards the rounded concave corners a
-// fused mesh makes where a base or a wall meets the floor (their faces still point up).
-double RobustHeight(const std::vector<double>& z, double lo, double hi, double bin) {
-  std::vector<double> in;
-  for (double v : z)
-    if (v >= lo && v < hi) in.push_back(v);
-  const auto mid = in.begin() + static_cast<long>(in.size() / 2);
-  std::nth_element(in.begin(), mid, in.end());
-  const double median = *mid;
-  double sum = 0;
-  std::size_t n = 0;
-  for (double v : in)
-    if (std::abs(v - median) <= bin / 4) sum += v, ++n;
-  return n ? sum / static_cast<double>(n) : median;
-}
-
 }  // namespace
 
 std::vector<Support> FindSupports(const PointCloud& scene_world, const SupportSearch& search) {
@@ -49,8 +27,14 @@ std::vector<Support> FindSupports(const PointCloud& scene_world, const SupportSe
   const auto [lo, hi] = std::minmax_element(z.begin(), z.end());
   const std::size_t bins = static_cast<std::size_t>((*hi - *lo) / search.bin_m) + 1;
   std::vector<std::size_t> count(bins, 0);
-  for (double v : z) ++count[static_cast<std::size_t>((v - *lo) / search.bin_m)];
-  // A peak is a bin holding more than either neighbour; its height is RobustHeight's.
+  std::vector<double> sum(bins, 0.0);
+  for (double v : z) {
+    const auto b = static_cast<std::size_t>((v - *lo) / search.bin_m);
+    ++count[b];
+    sum[b] += v;
+  }
+  // A peak is a bin holding more than either neighbour; its height is the mean of its points and
+  // its neighbours' (a surface's noise spreads it over two or three bins).
   const auto at = [&](std::size_t b, int d) -> std::size_t {
     const long i = static_cast<long>(b) + d;
     return i < 0 || i >= static_cast<long>(bins) ? 0 : count[static_cast<std::size_t>(i)];
@@ -59,8 +43,15 @@ std::vector<Support> FindSupports(const PointCloud& scene_world, const SupportSe
   std::vector<Support> out;
   for (std::size_t b = 0; b < bins; ++b) {
     if (count[b] < std::max<std::size_t>(min_points, 3) || count[b] < at(b, -1) || count[b] <= at(b, 1)) continue;
-    const double lo_z = *lo + (static_cast<double>(b) - 1) * search.bin_m, hi_z = lo_z + 3 * search.bin_m;
-    out.push_back({RobustHeight(z, lo_z, hi_z, search.bin_m), PointsBetween(z, lo_z, hi_z)});
+    double s = sum[b];
+    std::size_t n = count[b];
+    for (int d : {-1, 1}) {
+      const long i = static_cast<long>(b) + d;
+      if (i < 0 || i >= static_cast<long>(bins)) continue;
+      s += sum[static_cast<std::size_t>(i)];
+      n += count[static_cast<std::size_t>(i)];
+    }
+    out.push_back({s / static_cast<double>(n), n});
   }
   std::stable_sort(out.begin(), out.end(), [](const Support& a, const Support& b) { return a.points > b.points; });
   if (out.size() > search.max_supports) out.resize(search.max_supports);

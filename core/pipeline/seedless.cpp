@@ -379,7 +379,7 @@ Result<WholeMapReport> AutoSearch(const RobotSide& robot, const TriangleMesh& sc
   const double on = std::max(options.inlier_threshold_m, voxel);  // a map sample on the robot, at the mesh's resolution
   const double near = on + cell;                                   // round the robot, at the detection's cell
   double best_share = 0, best_bar = 1;
-  int unexplained = 0;  // fits not FAILED that leave too much of the map round them unexplained
+  int unexplained = 0;  // LOW_CONFIDENCE fits that leave too much of the map round them unexplained
   stages.Start("refine", 0.75);
   std::vector<Result<RegistrationReport>> full(distinct.size(), Status::Internal("not run"));
   tbb::parallel_for(std::size_t{0}, distinct.size(), [&](std::size_t i) {
@@ -401,7 +401,9 @@ Result<WholeMapReport> AutoSearch(const RobotSide& robot, const TriangleMesh& sc
                   ResultStatusName(full[i]->status), full[i]->inlier_fraction, full[i]->score, full[i]->margin,
                   distinct[i].detection_score, e.share, e.near, e.Bar(), duplicate ? " (duplicate)" : "");
     if (e.share > best_share) best_share = e.share, best_bar = e.Bar();
-    if (!e.Holds()) {
+    // An OK fit has passed arref-icp's margin and coverage; a LOW_CONFIDENCE one is a maybe, and
+    // with several candidates per room a maybe on clutter is likely, so it must explain its place.
+    if (full[i]->status != ResultStatus::kOk && !e.Holds()) {
       ++unexplained;
       continue;
     }

@@ -48,6 +48,7 @@ struct BenchArgs {
   std::vector<std::string> robust_without;
   std::string auto_methods = "arref-auto,sliding-box-shot,super4pcs,fpfh-ransac";
   int auto_rooms = 2;
+  std::vector<int> auto_arms = {0, 1, 2};
   bench::TrackConfig track;
   std::string command_line;
 };
@@ -95,6 +96,7 @@ int Run(const BenchArgs& args) {
   auto auto_methods = ParseMethodList(args.auto_methods, "--auto-methods");
   if (!auto_methods.ok()) return Fail(auto_methods.status());
   config.auto_methods = *auto_methods, config.auto_rooms = args.auto_rooms;
+  config.auto_arms = args.auto_arms;
   rc.robots = args.robots;
   config.track = args.track;
   if (rc.robots.empty()) {
@@ -226,6 +228,9 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
       ->capture_default_str();
   cmd->add_option("--auto-rooms", args->auto_rooms, "Auto experiment: rooms per robot, arm count (0, 1, 2) and mesher")
       ->check(CLI::Range(1, 1000))->capture_default_str();
+  cmd->add_option("--auto-arms", args->auto_arms,
+                  "Auto experiment: the arm counts run, comma-separated (0: rooms without the requested arm)")
+      ->delimiter(',')->check(CLI::Range(0, 2));
   cmd->add_option("--track-kinds", args->track.kinds, "Track: frame kinds (long-throw, ahat)")
       ->delimiter(',')->check(CLI::IsMember({"long-throw", "ahat"}));
   cmd->add_option("--track-streams", args->track.streams, "Track: streams per robot and frame kind (0: only the long streams)")

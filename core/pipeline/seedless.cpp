@@ -18,6 +18,7 @@
 #include "arref/base/clock.h"
 #include "arref/fusion/model_reconstruction.h"
 #include "arref/fusion/model_visibility.h"
+#include "arref/scene/nearest_neighbor.h"
 #include "arref/scene/sampling.h"
 
 namespace arref {
@@ -196,6 +197,49 @@ std::vector<Detection> Distinct(std::vector<Detection> all, double apart, std::s
   return out;
 }
 
+// How much of the map round a fit the robot explains. A robot that is there is the surface in
+// its own neighbourhood; a small model laid on clutter touches boxes, boards and walls that
+// carry on past it. Of the map samples within `near` of the posed model (above its support),
+// the share within `on` of it. An unrelated plane crossing the neighbourhood would be explained
+// at about the chance share on / near; a robot that is there leaves unexplained only what
+// happens to stand close to it (a wall, a table edge), at most half of that chance share.
+struct Explanation {
+  double share = 0;   // explained / near
+  double chance = 0;  // on / near
+  std::size_t near = 0;
+  double Bar() const { return 1.0 - 0.5 * chance; }
+  bool Holds() const { return near > 0 && share >= Bar(); }
+};
+
+Explanation Explain(const PointCloud& map, const PointCloud& model_base, const RobotSize& size, const Iso3& T_world_base,
+                    double on, double near) {
+  std::vector<Vec3f> posed;
+  posed.reserve(model_base.size());
+  Aabb box;
+  for (const Vec3f& p : model_base.points) {
+    posed.push_back((T_world_base * p.cast<double>()).cast<float>());
+    box.Extend(posed.back());
+  }
+  const PointIndex index(std::move(posed));
+  const float margin = static_cast<float>(near);
+  const double floor_z = T_world_base.translation().z() + size.z_min + on;  // the support itself explains nothing
+  Explanation e;
+  e.chance = on / near;
+  std::size_t explained = 0;
+  const float near_sq = static_cast<float>(near * near), on_sq = static_cast<float>(on * on);
+  for (const Vec3f& q : map.points) {
+    if ((q.array() < box.min.array() - margin).any() || (q.array() > box.max.array() + margin).any() || q.z() < floor_z)
+      continue;
+    std::uint32_t i = 0;
+    float d2 = 0;
+    if (!index.NearestWithin(q, near_sq, &i, &d2)) continue;
+    ++e.near;
+    explained += d2 <= on_sq;
+  }
+  e.share = e.near > 0 ? static_cast<double>(explained) / static_cast<double>(e.near) : 0.0;
+  return e;
+}
+
 int StatusRank(ResultStatus s) { return s == ResultStatus::kOk ? 0 : s == ResultStatus::kLowConfidence ? 1 : 2; }
 
 bool Better(const FoundInstance& a, const FoundInstance& b) {
@@ -332,6 +376,10 @@ Result<WholeMapReport> AutoSearch(const RobotSide& robot, const TriangleMesh& sc
     if (!duplicate) distinct.push_back(std::move(f));
   }
   // Tier 2: the full arref-icp from each distinct fit, whose status is the instance's.
+  const double on = std::max(options.inlier_threshold_m, voxel);  // a map sample on the robot, at the mesh's resolution
+  const double near = on + cell;                                   // round the robot, at the detection's cell
+  double best_share = 0, best_bar = 1;
+  int unexplained = 0;  // LOW_CONFIDENCE fits that leave too much of the map round them unexplained
   stages.Start("refine", 0.75);
   std::vector<Result<RegistrationReport>> full(distinct.size(), Status::Internal("not run"));
   tbb::parallel_for(std::size_t{0}, distinct.size(), [&](std::size_t i) {
@@ -346,10 +394,28 @@ Result<WholeMapReport> AutoSearch(const RobotSide& robot, const TriangleMesh& sc
     const bool duplicate = std::any_of(out.instances.begin(), out.instances.end(), [&](const FoundInstance& o) {
       return Horizontal(o.report.T_world_base, full[i]->T_world_base) < apart;
     });
+    const Explanation e = Explain(map, robot.samples(), size, full[i]->T_world_base, on, near);
+    spdlog::debug("arref-auto: instance at ({:.2f}, {:.2f}): {} inliers {:.3f} score {:.3f} margin {:.3f} detection {:.3f} "
+                  "explained {:.3f} of {} (bar {:.3f}){}",
+                  full[i]->T_world_base.translation().x(), full[i]->T_world_base.translation().y(),
+                  ResultStatusName(full[i]->status), full[i]->inlier_fraction, full[i]->score, full[i]->margin,
+                  distinct[i].detection_score, e.share, e.near, e.Bar(), duplicate ? " (duplicate)" : "");
+    if (e.share > best_share) best_share = e.share, best_bar = e.Bar();
+    // An OK fit has passed arref-icp's margin and coverage; a LOW_CONFIDENCE one is a maybe, and
+    // with several candidates per room a maybe on clutter is likely, so it must explain its place.
+    if (full[i]->status != ResultStatus::kOk && !e.Holds()) {
+      ++unexplained;
+      continue;
+    }
     if (!duplicate) out.instances.push_back({std::move(*full[i]), distinct[i].detection_score});
   }
   out.stages_run.push_back(fmt::format("arref-icp-x{}", distinct.size()));
-  if (out.instances.empty())
+  if (out.instances.empty() && unexplained > 0)
+    out.status_reason = fmt::format(
+        "none of the {} candidate bases explained the robot: the best fit left {:.0f} % of the map round it off the "
+        "robot (at most {:.0f} % for a robot that is there), so it lies on other surfaces",
+        fitted, 100 * (1 - best_share), 100 * (1 - best_bar));
+  else if (out.instances.empty())
     out.status_reason = fitted == 0 ? "no candidate base was found in the map"
                                     : fmt::format("none of the {} candidate bases explained the robot (best: {})", fitted,
                                                   best_reason.empty() ? "a LOW_CONFIDENCE fit that did not hold" : best_reason);

@@ -101,6 +101,11 @@ std::vector<AutoRun> RunRoom(const BenchRobot& robot, const BenchRobot* other, s
       double nearest = std::numeric_limits<double>::infinity();
       for (const auto* a : requested) nearest = std::min(nearest, add_to(f.report.T_world_base, *a));
       r.wrong_ok += f.report.status == ResultStatus::kOk && nearest > kWrongAddM;
+      spdlog::debug("bench: auto: {} {} room {} ({} arms): instance at ({:.2f}, {:.2f}) {} inliers {:.3f} score {:.3f} margin {:.3f} "
+                    "detection {:.3f}, {:.1f} mm from the nearest arm",
+                    robot.label, label.mesher, index, arms, f.report.T_world_base.translation().x(),
+                    f.report.T_world_base.translation().y(), ResultStatusName(f.report.status), f.report.inlier_fraction,
+                    f.report.score, f.report.margin, f.detection_score, nearest * 1000);
     }
     if (report->primary >= 0 && !requested.empty()) {
       double nearest = std::numeric_limits<double>::infinity();
@@ -227,7 +232,7 @@ Status AutoExperiment(const Config& config, Tables* tables) {
   std::vector<Task> tasks;
   const int per = config.quick ? 1 : config.auto_rooms;
   for (std::size_t r = 0; r < robots.size(); ++r)
-    for (int arms = 0; arms <= 2; ++arms)
+    for (int arms : config.auto_arms)
       for (int i = 0; i < per; ++i) {
         const std::uint64_t seed = Mix(stream ^ Mix(std::hash<std::string>{}(robots[r].label)) ^ Mix(static_cast<std::uint64_t>(arms * 1000 + i + 1)));
         for (sim::Mesher m : meshers) tasks.push_back({r, m, arms, i, seed});  // the same room layout for both meshers

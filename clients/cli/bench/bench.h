@@ -85,6 +85,7 @@ struct Config {
   // The auto experiment (seedless, whole rooms): its robots, meshers and split are robustness's.
   std::vector<std::string> auto_methods = {"arref-auto", "sliding-box-shot", "super4pcs", "fpfh-ransac"};
   int auto_rooms = 2;  // per robot, arm count (0, 1, 2) and mesher
+  std::vector<int> auto_arms = {0, 1, 2};  // the arm counts run (0 alone: only rooms without the arm)
   TrackConfig track;
 };
 

@@ -216,9 +216,10 @@ Status WriteRobustness(const std::string& dir, const Tables& tables, const std::
         "`open3d` Open3D's TSDF, marching cubes and decimation with a device's variations drawn per cell. Seeds: "
         "`user` 0.1-0.3 m off horizontally and +-0.3 m in height round the base, ~15 deg yaw; `cube` uniform in "
         "+-0.5 m in x, y and z; `any-yaw` as user with any yaw. Success = ADD <= 10 mm over all runs (errors "
-        "count as failures); wrong OK = said OK with ADD > 20 mm. Mesh error (open3d only): the ADD of the rigid "
-        "motion that best explains how the surfaces' own head-pose errors moved the robot in the mesh, which no fit "
-        "against the true pose can be expected to beat.\n\n";
+        "count as failures); wrong OK = said OK with ADD > 20 mm. Mesh error: the ADD of the gravity-aligned "
+        "rigid motion that best explains where the headset's own errors (each view's tracking error as the fusion "
+        "averages it, and open3d's per-surface head-pose errors) put the robot's seen surface in the mesh, which no "
+        "fit against the true pose can be expected to beat.\n\n";
   MarkdownTable(md, tables.robustness, kRobustnessLabels, RobustnessColumns());
   for (const auto& n : tables.notes)
     if (n.rfind("robot: ", 0) != 0) md << "- " << n << "\n";  // --robot is the other experiments' robot

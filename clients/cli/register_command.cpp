@@ -185,6 +185,22 @@ ProgressFn TerminalProgress() {
 
 // No seed: the whole map is searched (arref-auto unless a seedless method is named); the primary
 // instance's report, and every instance found under "candidates".
+// The result's error against the truth file's pose, in the printed result.
+void AddTruthError(const Iso3& T_world_base, const Iso3& T_world_base_true, const RobotSide& model, nlohmann::json* j) {
+  const PoseError e = ComparePoses(T_world_base, T_world_base_true, model.samples().points);
+  (*j)["translation_error_m"] = e.translation_m;
+  (*j)["rotation_error_deg"] = e.rotation_deg;
+  (*j)["add_m"] = e.add_m;
+}
+
+int PrintResult(const RegisterArgs& args, const nlohmann::json& j, ResultStatus status) {
+  if (args.json)
+    std::cout << j.dump(2) << std::endl;
+  else
+    PrintHuman(j);
+  return status == ResultStatus::kFailed ? kExitRegistrationFailed : kExitOk;
+}
+
 int RunWholeMap(const RegisterArgs& args, const Inputs& inputs, const RobotSide& model, const TriangleMesh& scene,
                 RegistrationOptions options, FrameConvention frame) {
   const MethodInfo* info = FindMethod(options.method);
@@ -218,18 +234,10 @@ int RunWholeMap(const RegisterArgs& args, const Inputs& inputs, const RobotSide&
     if (inputs.truth) entry["add_m"] = ComparePoses(f.report.T_world_base, inputs.T_world_base_true, model.samples().points).add_m;
     j["candidates"].push_back(entry);
   }
-  if (inputs.truth && whole->primary >= 0) {
-    const PoseError e = ComparePoses(whole->instances[static_cast<std::size_t>(whole->primary)].report.T_world_base,
-                                     inputs.T_world_base_true, model.samples().points);
-    j["translation_error_m"] = e.translation_m;
-    j["rotation_error_deg"] = e.rotation_deg;
-    j["add_m"] = e.add_m;
-  }
-  if (args.json)
-    std::cout << j.dump(2) << std::endl;
-  else
-    PrintHuman(j);
-  return whole->status == ResultStatus::kFailed ? kExitRegistrationFailed : kExitOk;
+  if (inputs.truth && whole->primary >= 0)
+    AddTruthError(whole->instances[static_cast<std::size_t>(whole->primary)].report.T_world_base, inputs.T_world_base_true,
+                  model, &j);
+  return PrintResult(args, j, whole->status);
 }
 
 int Run(const RegisterArgs& args) {
@@ -264,17 +272,8 @@ int Run(const RegisterArgs& args) {
   if (Status s = WriteResultFiles(args, *robot, inputs->joints, *scene, *report, inputs->T_world_seed, *frame); !s.ok())
     return Fail(s);
   nlohmann::json j = ReportJson(*report, *frame);
-  if (inputs->truth) {
-    const PoseError e = ComparePoses(report->T_world_base, inputs->T_world_base_true, (*model)->samples().points);
-    j["translation_error_m"] = e.translation_m;
-    j["rotation_error_deg"] = e.rotation_deg;
-    j["add_m"] = e.add_m;
-  }
-  if (args.json)
-    std::cout << j.dump(2) << std::endl;
-  else
-    PrintHuman(j);
-  return report->status == ResultStatus::kFailed ? kExitRegistrationFailed : kExitOk;
+  if (inputs->truth) AddTruthError(report->T_world_base, inputs->T_world_base_true, **model, &j);
+  return PrintResult(args, j, report->status);
 }
 
 std::string MethodHelp() {

@@ -214,7 +214,7 @@ Iso3 RandomWorldFrame(std::mt19937_64& rng) {
 // frame: the headset's voxel grid is aligned with its world, not with the cell.
 Result<TriangleMesh> ScanAndFuse(const CellScene& scene, const SimOptions& options, const Iso3& T_world_cell,
                                  double voxel_m, std::uint64_t rng_seed, std::mt19937_64& rng,
-                                 std::vector<Vec3>* head_path_world, MeshImprint* imprint) {
+                                 std::vector<Vec3>* head_path_world, MeshImprint* imprint /* null: not measured */) {
   const ScanOptions& scan = options.scan;
   auto caster = RayCaster::Create(scene.mesh);
   if (!caster.ok()) return caster.status();
@@ -232,7 +232,7 @@ Result<TriangleMesh> ScanAndFuse(const CellScene& scene, const SimOptions& optio
     std::vector<float> incidence;
     RangeImage range = caster->Render(camera, views[i].T_cell_camera_true, scan.max_range_m, &incidence);
     AddRangeNoise(range, scan, rng_seed, i);
-    imprint->AddView(camera, T_world_cell * views[i].T_cell_camera_true, T_world_cell * views[i].T_cell_camera_believed,
+    if (imprint) imprint->AddView(camera, T_world_cell * views[i].T_cell_camera_true, T_world_cell * views[i].T_cell_camera_believed,
                      range, SeenTolerance(scan));
     ARREF_RETURN_IF_ERROR(volume.Integrate(camera, T_world_cell * views[i].T_cell_camera_believed, range, incidence));
     head_path_world->push_back(T_world_cell * views[i].T_cell_camera_believed.translation());
@@ -455,7 +455,7 @@ Result<std::vector<Surface>> ScanAndMeshOpen3d(const CellScene& scene, const Rob
     AddRangeNoise(range, scan, rng_seed, i);
     DropPixels(range, camera, views[i].T_cell_camera_true, scene.T_cell_base.translation(), options.fusion.crop_radius_m, patches);
     T_world_camera.push_back(T_world_cell * views[i].T_cell_camera_believed);
-    imprint->AddView(camera, T_world_cell * views[i].T_cell_camera_true, T_world_camera.back(), range, SeenTolerance(scan));
+    if (imprint) imprint->AddView(camera, T_world_cell * views[i].T_cell_camera_true, T_world_camera.back(), range, SeenTolerance(scan));
     ranges.push_back(std::move(range));
     head_path_world->push_back(T_world_camera.back().translation());
   }
@@ -580,11 +580,10 @@ Result<SimulatedCell> SimulateCell(const RobotModel& robot, const SimOptions& re
   cell.props = scene->props;
   std::size_t triangles = 0;
   std::optional<MeshImprint> imprint = RobotImprint(robot, *scene, cell.T_world_cell, rng_seed);
-  MeshImprint unused(PointCloud{}, Vec3::Zero());  // for a robot that cannot be posed
   if (mesher == Mesher::kOpen3d) {
     cell.voxel_m = device.voxel_m;
     auto surfaces = ScanAndMeshOpen3d(*scene, robot, options, device, cell.T_world_cell, rng_seed, rng,
-                                      &cell.head_path_world, imprint ? &*imprint : &unused);
+                                      &cell.head_path_world, imprint ? &*imprint : nullptr);
     if (!surfaces.ok()) return surfaces.status().WithContext("simulating the headset's scan (open3d mesher)");
     cell.surfaces = std::move(*surfaces);
     for (const Surface& s : cell.surfaces) triangles += s.mesh.triangles.size();
@@ -592,7 +591,7 @@ Result<SimulatedCell> SimulateCell(const RobotModel& robot, const SimOptions& re
   } else {
     cell.voxel_m = VoxelSize(options.fusion);
     auto fused = ScanAndFuse(*scene, options, cell.T_world_cell, cell.voxel_m, rng_seed, rng, &cell.head_path_world,
-                             imprint ? &*imprint : &unused);
+                             imprint ? &*imprint : nullptr);
     if (!fused.ok()) return fused.status().WithContext("simulating the headset's scan");
     triangles = fused->triangles.size();
     cell.surfaces = SplitIntoSurfaces(*fused, options.fusion.surface_chunk_m, options.scan.views * kSecondsPerView);

@@ -25,6 +25,13 @@ Status RecordingWriter::Append(double t_s, const pb::ClientMessage& message) {
   return Write(recorded);
 }
 
+Status RecordingWriter::AppendAnswer(double t_s, std::uint64_t request_id) {
+  pb::RecordedMessage recorded;
+  recorded.set_t_s(t_s);
+  recorded.set_answered_request_id(request_id);
+  return Write(recorded);
+}
+
 Status RecordingWriter::Write(const google::protobuf::MessageLite& message) {
   const std::string frame = EncodeFrame(message);
   out_.write(frame.data(), static_cast<std::streamsize>(frame.size()));
@@ -65,9 +72,11 @@ Result<Recording> ReadRecording(const std::string& path) {
       !rec.header.ParseFromArray(first.body.data(), static_cast<int>(first.body.size())) ||
       rec.header.format() != kRecordingFormat)
     return Status::InvalidArgument("recording " + path + ": not an arref recording (no RecordingHeader)");
-  if (rec.header.format_version() != kRecordingFormatVersion)
-    return Status::InvalidArgument(fmt::format("recording {}: format version {}, this build reads version {}", path,
-                                               rec.header.format_version(), kRecordingFormatVersion));
+  if (rec.header.format_version() < kOldestRecordingFormatVersion ||
+      rec.header.format_version() > kRecordingFormatVersion)
+    return Status::InvalidArgument(fmt::format("recording {}: format version {}, this build reads versions {} to {}",
+                                               path, rec.header.format_version(), kOldestRecordingFormatVersion,
+                                               kRecordingFormatVersion));
   while (pos < bytes.size()) {
     const std::size_t at = pos;
     const NextFrame f = ReadFrame(bytes, pos);
@@ -80,7 +89,10 @@ Result<Recording> ReadRecording(const std::string& path) {
     if (f.state != FrameHeader::State::kComplete || !m.ParseFromArray(f.body.data(), static_cast<int>(f.body.size())))
       return Status::InvalidArgument(fmt::format("recording {}: message {} at byte {} does not parse", path,
                                                  rec.messages.size() + 1, at));
-    rec.messages.push_back(std::move(m));
+    if (!m.has_message() && m.answered_request_id() != 0)
+      rec.answered_at_s[m.answered_request_id()] = m.t_s();
+    else
+      rec.messages.push_back(std::move(m));
   }
   return rec;
 }

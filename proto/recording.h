@@ -1,9 +1,10 @@
 // Session recordings (arref.proto, "recordings"): a RecordingHeader, then one RecordedMessage
-// per client message, each varint-delimited like the wire. The writer clears Hello.auth_token
-// itself, so no caller can leak a token into a file.
+// per client message (and one answer record per Result sent), each varint-delimited like the
+// wire. The writer clears Hello.auth_token itself, so no caller can leak a token into a file.
 #pragma once
 
 #include <fstream>
+#include <map>
 #include <memory>
 #include <string>
 #include <vector>
@@ -14,7 +15,8 @@
 namespace arref::wire {
 
 inline constexpr char kRecordingFormat[] = "arref-recording";
-inline constexpr std::uint32_t kRecordingFormatVersion = 1;
+inline constexpr std::uint32_t kRecordingFormatVersion = 2;
+inline constexpr std::uint32_t kOldestRecordingFormatVersion = 1;  // still read
 
 class RecordingWriter {
  public:
@@ -23,6 +25,8 @@ class RecordingWriter {
   // Appends one message received t_s after the connection was accepted, and flushes, so that a
   // crash loses nothing already received.
   Status Append(double t_s, const pb::ClientMessage& message);
+  // Records that the Result of `request_id` was sent t_s after the connection was accepted.
+  Status AppendAnswer(double t_s, std::uint64_t request_id);
   const std::string& path() const { return path_; }
 
  private:
@@ -34,7 +38,8 @@ class RecordingWriter {
 
 struct Recording {
   pb::RecordingHeader header;
-  std::vector<pb::RecordedMessage> messages;
+  std::vector<pb::RecordedMessage> messages;  // the client's, in arrival order
+  std::map<std::uint64_t, double> answered_at_s;  // request id -> when its Result was sent (version 2)
 };
 
 // The whole file. Errors name the file and the byte or message where it broke (a wrong format,

@@ -8,23 +8,65 @@
 #include <limits>
 #include <map>
 #include <optional>
+#include <set>
+#include <utility>
 
 #include "arref/scene/spatial_mesh.h"
 #include "convert.h"
 #include "registration_job.h"
 #include "request_builder.h"
+#include "subscriber_hub.h"
+#include "tracking_messages.h"
+#include "tracking_service.h"
 
 namespace arref::server {
 namespace {
 
 namespace pb = wire::pb;
 
+// Takes the tracking updates (and frame errors) the TrackingService sends to the session.
+class CollectingSink : public TrackingSink {
+ public:
+  explicit CollectingSink(std::uint64_t id) : id_(id) {}
+  std::uint64_t id() const override { return id_; }
+  void SendFrame(std::shared_ptr<const std::string> frame) override {
+    const auto* data = reinterpret_cast<const std::uint8_t*>(frame->data());
+    const wire::FrameHeader h = wire::DecodeFrameHeader(data, frame->size(), frame->size());
+    pb::ServerMessage message;
+    if (h.state == wire::FrameHeader::State::kComplete &&
+        message.ParseFromArray(data + h.header_bytes, static_cast<int>(h.body_bytes)))
+      pushed_.push_back(std::move(message));
+  }
+  std::vector<pb::ServerMessage> Take() { return std::exchange(pushed_, {}); }
+
+ private:
+  std::uint64_t id_;
+  std::vector<pb::ServerMessage> pushed_;
+};
+
+// The recording server's steady clock at t_s after the connection, and that clock as Unix time
+// (version 1 recordings, without start_server_time_s, cannot say: 0).
+struct RecordedClock {
+  explicit RecordedClock(const pb::RecordingHeader& h)
+      : known(h.has_start_server_time_s()), start_server_s(h.start_server_time_s()), start_unix_s(h.start_unix_s()) {}
+  double ServerTime(double t_s) const { return start_server_s + t_s; }
+  double UnixTime(double server_time_s) const { return known ? start_unix_s + (server_time_s - start_server_s) : 0.0; }
+  bool known;
+  double start_server_s, start_unix_s;
+};
+
 // What one recorded session held, as the server's Session held it (without its limits, which
 // a recording already passed).
 class OfflineSession {
  public:
   OfflineSession(const pb::RecordingHeader& header, RobotRegistry& robots, const RegistrationOptions& registration)
-      : header_(header), robots_(robots), registration_(registration) {}
+      : header_(header),
+        clock_(header),
+        robots_(robots),
+        registration_(registration),
+        sink_(std::make_shared<CollectingSink>(header.session_id())),
+        tracking_(hub_, TrackingServiceOptions{.process_inline = true,
+                                               .unix_time_of = [this](double t) { return clock_.UnixTime(t); }}) {}
 
   // The answer to one message, if it has one.
   std::optional<pb::ServerMessage> Handle(const pb::ClientMessage& m, double t_s) {
@@ -41,10 +83,21 @@ class OfflineSession {
       case K::kRegisterRequest: return OnRegisterRequest(m.register_request(), t_s);
       case K::kSubscribe: return OnSubscribe(m.subscribe());
       case K::kPing: return OnPing(m.ping(), t_s);
-      // Hello; tracking (TrackRequest, DepthFrame, ClockReport) is not re-run offline; Cancel is
-      // the replay's, which knows what is in flight.
+      case K::kTrackRequest:
+        return Answer(HandleTrackRequest(m.track_request(), robots_, tracking_, sink_, seed_));
+      case K::kDepthFrame: return Answer(HandleDepthFrame(m.depth_frame(), tracking_, sink_->id()));
+      case K::kClockReport: return Answer(HandleClockReport(m.clock_report(), tracking_, sink_->id()));
+      // Hello; Cancel is the replay's, which knows what is in flight.
       default: return std::nullopt;
     }
+  }
+
+  // What tracking sent the session since the last call (updates and frame errors, in order).
+  std::vector<pb::ServerMessage> TakePushed() { return sink_->Take(); }
+
+  static std::optional<pb::ServerMessage> Answer(const std::optional<Refusal>& refused) {
+    if (!refused) return std::nullopt;
+    return Error(refused->code, refused->message);
   }
 
   static pb::ServerMessage Error(pb::ErrorCode code, const std::string& message, std::uint64_t request_id = 0,
@@ -70,15 +123,16 @@ class OfflineSession {
     return reply;
   }
 
-  // The server's clock is the recording's: seconds after the connection was accepted.
-  static pb::ServerMessage OnPing(const pb::Ping& m, double t_s) {
+  // The server's clock is the recording's (for a version 1 recording: seconds after the
+  // connection was accepted).
+  pb::ServerMessage OnPing(const pb::Ping& m, double t_s) const {
     pb::ServerMessage reply;
     pb::Pong* pong = reply.mutable_pong();
     pong->set_nonce(m.nonce());
     pong->set_payload(m.payload());
     pong->set_client_time_s(m.client_time_s());
-    pong->set_receive_time_s(t_s);
-    pong->set_server_time_s(t_s);
+    pong->set_receive_time_s(clock_.ServerTime(t_s));
+    pong->set_server_time_s(clock_.ServerTime(t_s));
     return reply;
   }
 
@@ -104,9 +158,13 @@ class OfflineSession {
   // As the live session does (ReadJointState), so that later requests see the same state.
   std::optional<pb::ServerMessage> OnJointState(const pb::JointState& m) {
     JointStateOutcome outcome = ReadJointState(m, robots_);
+    std::optional<pb::ServerMessage> answer;
+    if (outcome.error != pb::ERROR_CODE_UNSPECIFIED)  // then it was rejected, or names no robot served
+      answer = Error(outcome.error, outcome.message);
+    else if (outcome.keep)
+      answer = Answer(FeedJointStream(m, outcome.joints.values, robots_, tracking_, sink_->id()));
     if (outcome.keep) joints_[m.robot_id()] = std::move(outcome.joints);
-    if (outcome.error != pb::ERROR_CODE_UNSPECIFIED) return Error(outcome.error, outcome.message);
-    return std::nullopt;
+    return answer;
   }
 
   std::optional<pb::ServerMessage> OnRegisterRequest(const pb::RegisterRequest& m, double t_s) {
@@ -134,8 +192,12 @@ class OfflineSession {
   }
 
   const pb::RecordingHeader& header_;
+  const RecordedClock clock_;
   RobotRegistry& robots_;
   const RegistrationOptions& registration_;
+  std::shared_ptr<CollectingSink> sink_;
+  SubscriberHub hub_;  // no other sessions offline: nobody subscribes
+  TrackingService tracking_;  // declared last: its updates reach the members above
   SpatialMesh spatial_;
   std::optional<Iso3> seed_;
   FrameConvention seed_frame_ = FrameConvention::kUnity;
@@ -151,26 +213,35 @@ Result<ServerConfig> RegistrationConfig(const wire::Recording& recording, const 
   return recorded;
 }
 
-// A session's Results in the order it would send them: each request runs when the one before it
-// is done (or when it arrives), for as long as it took offline. A Cancel that arrives before its
-// request's run is over answers it CANCELLED instead, as the live server would have (whether
-// it did depends on how long the run took there; the recording does not say).
+// A session's Results in the order it would send them. A request whose answer the recording
+// timed (version 2) is answered then, and a Cancel decided by that time, as the live server
+// decided it. Otherwise each request runs when the one before it is done (or when it
+// arrives), for as long as it took offline, and a Cancel that arrives before that run is over
+// answers it CANCELLED (whether the live server did depends on how long the run took there).
 class PendingResults {
  public:
-  explicit PendingResults(std::function<void(std::size_t, double, pb::ServerMessage)> emit) : emit_(std::move(emit)) {}
+  PendingResults(const std::map<std::uint64_t, double>& answered_at_s,
+                 std::function<void(std::size_t, double, pb::ServerMessage)> emit)
+      : answered_at_s_(answered_at_s), emit_(std::move(emit)) {}
 
   void Add(std::size_t index, double t_s, pb::ServerMessage result) {
     const double run_s = result.result().server_ms() / 1000.0;
-    pending_.push_back({index, t_s, run_s, 0.0, std::move(result)});
+    const auto answered = answered_at_s_.find(result.result().request_id());
+    std::optional<double> recorded;
+    if (answered != answered_at_s_.end()) recorded = std::max(answered->second, t_s);
+    pending_.push_back({index, t_s, run_s, 0.0, recorded, std::move(result)});
     Reschedule();
   }
 
-  // Answers every result done by t_s.
+  // Answers every result done by t_s, in the order they were done.
   void Until(double t_s) {
-    while (!pending_.empty() && pending_.front().done_s <= t_s) {
-      free_at_s_ = pending_.front().done_s;
-      emit_(pending_.front().index, pending_.front().t_s, std::move(pending_.front().message));
-      pending_.pop_front();
+    for (;;) {
+      auto next = std::min_element(pending_.begin(), pending_.end(),
+                                   [](const Pending& a, const Pending& b) { return a.done_s < b.done_s; });
+      if (next == pending_.end() || next->done_s > t_s) return;
+      if (!next->recorded_done_s) free_at_s_ = next->done_s;
+      emit_(next->index, next->t_s, std::move(next->message));
+      pending_.erase(next);
     }
   }
 
@@ -187,7 +258,15 @@ class PendingResults {
           pb::ERROR_CODE_UNKNOWN_REQUEST,
           fmt::format("request {} is not in flight (never accepted or already answered)", request_id), request_id);
     const double started_s = it->done_s - it->run_s;
-    const bool queued = t_s < started_s;
+    const bool queued = !it->recorded_done_s && t_s < started_s;
+    const std::string why =
+        it->recorded_done_s
+            ? fmt::format("cancelled by the client (replay: the Cancel came {:.3f} s after the request, before the "
+                          "live server answered it at {:.3f} s)",
+                          t_s - it->t_s, *it->recorded_done_s - it->t_s)
+            : fmt::format("cancelled by the client while {} (replay: the Cancel came {:.3f} s after the request, the "
+                          "replayed run took {:.3f} s)",
+                          queued ? "queued" : "running", t_s - it->t_s, it->run_s);
     const pb::Result& ran = it->message.result();
     const wire::ResultHeader header{.request_id = ran.request_id(), .robot_id = ran.robot_id(),
                                     .session_id = ran.session_id(), .queue_ms = 0.0,
@@ -195,13 +274,9 @@ class PendingResults {
                                     .scene_time_unix_s = ran.scene_time_unix_s(),
                                     .scene_headset_time_s = ran.scene_headset_time_s()};
     const auto frame = wire::FromProto(ran.frame());
-    it->message = wire::ResultMessage(
-        header, std::nullopt,
-        Status::Cancelled(fmt::format("cancelled by the client while {} (replay: the Cancel came {:.3f} s after the "
-                                      "request, the replayed run took {:.3f} s)",
-                                      queued ? "queued" : "running", t_s - it->t_s, it->run_s)),
-        frame.ok() ? *frame : FrameConvention::kRos);
-    it->run_s = queued ? 0.0 : t_s - started_s;
+    it->message = wire::ResultMessage(header, std::nullopt, Status::Cancelled(why),
+                                      frame.ok() ? *frame : FrameConvention::kRos);
+    if (!it->recorded_done_s) it->run_s = queued ? 0.0 : t_s - started_s;
     Reschedule();
     return std::nullopt;
   }
@@ -210,15 +285,42 @@ class PendingResults {
   struct Pending {
     std::size_t index;
     double t_s, run_s, done_s;
+    std::optional<double> recorded_done_s;  // when the live server answered it
     pb::ServerMessage message;
   };
+  // Requests without a recorded answer run one after the other on the replay's one worker.
   void Reschedule() {
     double free_s = free_at_s_;
-    for (Pending& p : pending_) free_s = p.done_s = std::max(p.t_s, free_s) + p.run_s;
+    for (Pending& p : pending_)
+      if (p.recorded_done_s)
+        p.done_s = *p.recorded_done_s;
+      else
+        free_s = p.done_s = std::max(p.t_s, free_s) + p.run_s;
   }
+  const std::map<std::uint64_t, double>& answered_at_s_;
   std::function<void(std::size_t, double, pb::ServerMessage)> emit_;
   std::deque<Pending> pending_;
   double free_at_s_ = 0.0;
+};
+
+// A tracked robot whose joint stream came on another connection (a robot-side program) is
+// posed at its zero joints offline: the replay says so rather than let the updates mislead.
+class JointStreamCheck {
+ public:
+  void See(const pb::ClientMessage& m) {
+    if (m.has_track_request() && !m.track_request().stop()) tracked_.insert(m.track_request().robot_id());
+    if (m.has_joint_state() && m.joint_state().timestamp_s() > 0) streamed_.insert(m.joint_state().robot_id());
+  }
+  void WarnIfMissing() const {
+    for (const std::string& id : tracked_)
+      if (!streamed_.count(id))
+        spdlog::warn("replay: robot '{}' was tracked but this recording holds no timestamped JointState for it (its "
+                     "joint stream came on another connection?): it was tracked at its zero joints here",
+                     id);
+  }
+
+ private:
+  std::set<std::string> tracked_, streamed_;
 };
 
 }  // namespace
@@ -243,20 +345,23 @@ Result<std::vector<ReplayedAnswer>> ReplayRecording(const wire::Recording& recor
     answers.push_back({.message_index = index, .t_s = t_s, .message = std::move(message)});
     if (on_answer) on_answer(answers.back());
   };
-  PendingResults results(emit);
+  PendingResults results(recording.answered_at_s, emit);
+  JointStreamCheck joint_streams;
   for (std::size_t i = 0; i < recording.messages.size(); ++i) {
     const auto& recorded = recording.messages[i];
     results.Until(recorded.t_s());
+    joint_streams.See(recorded.message());
     std::optional<pb::ServerMessage> answer =
         recorded.message().has_cancel() ? results.Cancel(recorded.message().cancel().request_id(), recorded.t_s())
                                         : session.Handle(recorded.message(), recorded.t_s());
-    if (!answer) continue;
-    if (answer->has_result())
+    if (answer && answer->has_result())
       results.Add(i, recorded.t_s(), std::move(*answer));
-    else
+    else if (answer)
       emit(i, recorded.t_s(), std::move(*answer));
+    for (pb::ServerMessage& pushed : session.TakePushed()) emit(i, recorded.t_s(), std::move(pushed));
   }
   results.Until(std::numeric_limits<double>::infinity());
+  joint_streams.WarnIfMissing();
   return answers;
 }
 

@@ -19,7 +19,8 @@ struct ReplayOptions {
 };
 
 // What the server answered, or would have, to one recorded message: a Result for each
-// registration, an Error for each message it refused, a Pong or Subscribed.
+// registration, a TrackingUpdate for each depth frame, an Error for each message it refused, a
+// Pong or Subscribed.
 struct ReplayedAnswer {
   std::size_t message_index = 0;  // into Recording::messages
   double t_s = 0.0;               // when that message had arrived
@@ -27,11 +28,13 @@ struct ReplayedAnswer {
 };
 
 // Robots come from config.robots (by id, as the recording names them). Requests run one after
-// the other in recorded order, each taken to end its replayed run time after it started; a
+// the other in recorded order. A Result comes when the recording says the live server sent it
+// (format version 2), else when its replayed run, started after the one before it, is over; a
 // Cancel arriving before that answers it CANCELLED, one for no request in flight
-// UNKNOWN_REQUEST. Subscribe is answered Subscribed (or UNKNOWN_ROBOT), Ping a Pong whose
-// server times are the recording's (seconds after the connection). Answers come in the order
-// the session would send them; on_answer sees each as it is made.
+// UNKNOWN_REQUEST. Tracking runs through the server's TrackingService, each depth frame
+// processed when it arrives (none dropped). Subscribe is answered Subscribed (or UNKNOWN_ROBOT),
+// Ping a Pong with the recording's server times. Answers come in the order the session would
+// send them; on_answer sees each as it is made.
 Result<std::vector<ReplayedAnswer>> ReplayRecording(const wire::Recording& recording, const ServerConfig& config,
                                                     const ReplayOptions& options = {},
                                                     const std::function<void(const ReplayedAnswer&)>& on_answer = {});

@@ -12,6 +12,7 @@
 #include "arref/base/clock.h"
 #include "convert.h"
 #include "request_builder.h"
+#include "tracking_messages.h"
 
 namespace arref::server {
 namespace {
@@ -397,14 +398,8 @@ void Session::OnJointState(const pb::JointState& m) {
   if (!outcome.keep) return;
   const JointValues& joints = outcome.joints.values;
   if (outcome.joints.rejected.empty()) {
-    // A timestamped state naming its robot is also a sample of that robot's joint stream.
-    if (!m.robot_id().empty() && m.timestamp_s() > 0) {
-      const ServedRobot* robot = ctx_.robots.Find(m.robot_id());
-      auto complete = ctx_.robots.ResolveJoints(*robot, joints);
-      if (complete.ok())
-        if (auto st = ctx_.tracking.AddJoints(m.robot_id(), id_, m.timestamp_s(), *complete); !st.ok())
-          SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "JointState: " + st.message());
-    }
+    if (auto refused = FeedJointStream(m, joints, ctx_.robots, ctx_.tracking, id_))
+      SendError(refused->code, refused->message);
     if (spatial_.size() > 0)
       for (const auto& [name, value] : joints) {
         auto [it, fresh] = joint_range_[m.robot_id()].try_emplace(name, value, value);
@@ -425,38 +420,16 @@ double Session::JointMotionWhileMapping(const std::string& robot_id) const {
 }
 
 void Session::OnTrackRequest(const pb::TrackRequest& m) {
-  const ServedRobot* robot = ctx_.robots.Find(m.robot_id());
-  if (!robot)
-    return SendError(pb::ERROR_CODE_UNKNOWN_ROBOT, fmt::format("TrackRequest: robot '{}' is not served here (served: {})",
-                                                               m.robot_id(), ctx_.robots.Ids()));
-  if (m.stop()) return ctx_.tracking.Stop(m.robot_id(), id_);
-  const auto result_frame = wire::FromProto(m.result_frame());
-  if (!result_frame.ok())
-    return SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "TrackRequest.result_frame: " + result_frame.status().message());
-  std::optional<Iso3> seed = seed_;
-  if (m.has_seed()) {
-    const auto frame = wire::FromProto(m.seed().frame());
-    if (!frame.ok()) return SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "TrackRequest.seed: " + frame.status().message());
-    auto T = wire::PoseFromProto(m.seed().t_world_seed(), *frame);
-    if (!T.ok()) return SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "TrackRequest.seed: " + T.status().message());
-    seed = *T;
-  }
-  if (!seed) return SendError(pb::ERROR_CODE_NO_SEED, "TrackRequest: no seed in the request and no SeedPose in the session");
-  if (auto st = ctx_.tracking.Start(*robot, m.robot_id(), shared_from_this(), *seed, *result_frame); !st.ok())
-    return SendError(wire::ErrorCodeFor(st), "TrackRequest: " + st.message());
+  if (auto refused = HandleTrackRequest(m, ctx_.robots, ctx_.tracking, shared_from_this(), seed_))
+    SendError(refused->code, refused->message);
 }
 
 void Session::OnDepthFrame(const pb::DepthFrame& m) {
-  auto frame = wire::DepthFrameFromProto(m);
-  if (!frame.ok()) return SendError(pb::ERROR_CODE_BAD_DEPTH_FRAME, fmt::format("DepthFrame {}: {}", m.frame_id(), frame.status().message()));
-  if (auto st = ctx_.tracking.SubmitFrame(m.robot_id(), id_, m.frame_id(), std::move(*frame)); !st.ok())
-    return SendError(pb::ERROR_CODE_NOT_TRACKING, st.message());
+  if (auto refused = HandleDepthFrame(m, ctx_.tracking, id_)) SendError(refused->code, refused->message);
 }
 
 void Session::OnClockReport(const pb::ClockReport& m) {
-  if (!std::isfinite(m.offset_s()) || !std::isfinite(m.uncertainty_s()) || m.uncertainty_s() < 0)
-    return SendError(pb::ERROR_CODE_INVALID_ARGUMENT, "ClockReport: offset and uncertainty must be finite, uncertainty >= 0");
-  ctx_.tracking.ReportClock(id_, {m.offset_s(), m.uncertainty_s(), true});
+  if (auto refused = HandleClockReport(m, ctx_.tracking, id_)) SendError(refused->code, refused->message);
 }
 
 void Session::OnCancel(const pb::Cancel& m) {
@@ -638,6 +611,7 @@ void Session::StartRecording(const pb::HelloReply& reply, const pb::ClientMessag
   header.set_protocol_version(wire::kProtocolVersion);
   header.set_session_id(id_);
   header.set_start_unix_s(connected_unix_s_);
+  header.set_start_server_time_s(std::chrono::duration<double>(connected_at_.time_since_epoch()).count());
   header.set_client_name(client_name_);
   *header.mutable_robots() = reply.robots();
   header.set_registration_yaml(RegistrationYaml(ctx_.config));
@@ -652,11 +626,17 @@ void Session::StartRecording(const pb::HelloReply& reply, const pb::ClientMessag
 }
 
 void Session::Record(const pb::ClientMessage& message) {
-  if (!recorder_) return;
-  if (Status s = recorder_->Append(MsSince(connected_at_) / 1000.0, message); !s.ok()) {
-    spdlog::warn("session {}: recording stopped: {}", id_, s.ToString());
-    recorder_.reset();
-  }
+  if (recorder_) KeepRecording(recorder_->Append(MsSince(connected_at_) / 1000.0, message));
+}
+
+void Session::RecordAnswer(std::uint64_t request_id) {
+  if (recorder_) KeepRecording(recorder_->AppendAnswer(MsSince(connected_at_) / 1000.0, request_id));
+}
+
+void Session::KeepRecording(const Status& written) {
+  if (written.ok()) return;
+  spdlog::warn("session {}: recording stopped: {}", id_, written.ToString());
+  recorder_.reset();
 }
 
 // ---------------------------------------------------------------- writing
@@ -670,6 +650,7 @@ void Session::SendFrame(std::shared_ptr<const std::string> frame) {
 void Session::DeliverResult(std::uint64_t request_id, std::shared_ptr<const std::string> frame) {
   net::post(socket_.get_executor(), [self = shared_from_this(), request_id, frame = std::move(frame)]() mutable {
     self->in_flight_.erase(request_id);
+    self->RecordAnswer(request_id);
     self->Enqueue(std::move(frame));
     if (self->read_closed_ && self->in_flight_.empty())
       self->StartClosing("client closed its side; every result delivered");

@@ -62,18 +62,18 @@ constexpr std::size_t kMaxHelloBytes = 64 * 1024;
 constexpr std::size_t kChargedFrameBytes = 64 * 1024;
 constexpr std::size_t kMaxPingPayload = 64 * 1024;
 
-class Session : public std::enable_shared_from_this<Session> {
+class Session : public TrackingSink, public std::enable_shared_from_this<Session> {
  public:
   Session(tcp::socket socket, ServerContext& context, std::uint64_t id);
   ~Session();
 
-  std::uint64_t id() const { return id_; }
+  std::uint64_t id() const override { return id_; }
   void Start();
   // Rejects the connection with a fatal error (e.g. too many sessions).
   void Reject(wire::pb::ErrorCode code, const std::string& message);
 
   // Thread-safe: these post onto the session's strand.
-  void SendFrame(std::shared_ptr<const std::string> frame);
+  void SendFrame(std::shared_ptr<const std::string> frame) override;
   void DeliverResult(std::uint64_t request_id, std::shared_ptr<const std::string> frame);
   void NotifyShutdown(double grace_s);
   void CloseGracefully(const std::string& reason);
@@ -118,6 +118,8 @@ class Session : public std::enable_shared_from_this<Session> {
   // recording, never the session.
   void StartRecording(const wire::pb::HelloReply& reply, const wire::pb::ClientMessage& hello);
   void Record(const wire::pb::ClientMessage& message);
+  void RecordAnswer(std::uint64_t request_id);  // a Result sent (so replays decide Cancels as live)
+  void KeepRecording(const Status& written);
 
   // Writing.
   void Send(const wire::pb::ServerMessage& message);

@@ -8,12 +8,18 @@
 #include "arref/base/clock.h"
 #include "convert.h"
 #include "robot_registry.h"
-#include "session.h"
 #include "subscriber_hub.h"
 
 namespace arref::server {
 
 namespace pb = wire::pb;
+
+struct TrackingService::Pending {
+  DepthFrame frame;  // time on the server's clock
+  std::uint64_t frame_id = 0;
+  SteadyClock::time_point received;
+  ClockEstimate clock;
+};
 
 struct TrackingService::Track {
   std::string robot_id;
@@ -21,25 +27,22 @@ struct TrackingService::Track {
   std::mutex mu;
   std::condition_variable wake;
   bool stopping = false;
-  std::weak_ptr<Session> owner;
+  std::weak_ptr<TrackingSink> owner;
   std::uint64_t owner_id = 0;
   FrameConvention result_frame = FrameConvention::kRos;
   std::mutex tracker_mu;  // held while the tracker runs or is seeded
   std::optional<Tracker> tracker;
   JointHistory history;
-  struct Pending {
-    DepthFrame frame;  // time on the server's clock
-    std::uint64_t frame_id = 0;
-    SteadyClock::time_point received;
-    ClockEstimate clock;
-  };
   std::optional<Pending> slot;
   std::uint64_t processed = 0, dropped = 0, joints_out_of_order = 0;
   std::thread worker;
   explicit Track(std::vector<std::string> joint_names) : history(std::move(joint_names)) {}
 };
 
-TrackingService::TrackingService(SubscriberHub& hub) : hub_(hub) {}
+TrackingService::TrackingService(SubscriberHub& hub, TrackingServiceOptions options)
+    : hub_(hub), options_(std::move(options)) {
+  if (!options_.unix_time_of) options_.unix_time_of = &TrackingService::UnixTimeOf;
+}
 
 TrackingService::~TrackingService() { Shutdown(); }
 
@@ -80,7 +83,7 @@ void TrackingService::ReportClock(std::uint64_t session_id, const ClockEstimate&
 }
 
 Status TrackingService::Start(const ServedRobot& served, const std::string& robot_id,
-                              const std::shared_ptr<Session>& session, const Iso3& T_world_base_seed,
+                              const std::shared_ptr<TrackingSink>& session, const Iso3& T_world_base_seed,
                               FrameConvention result_frame) {
   std::lock_guard lock(mu_);
   auto& slot = tracks_[robot_id];
@@ -98,7 +101,7 @@ Status TrackingService::Start(const ServedRobot& served, const std::string& robo
     }
     track->tracker.emplace(std::move(*tracker));
     Track* raw = track.get();
-    track->worker = std::thread([this, raw] { Work(*raw); });
+    if (!options_.process_inline) track->worker = std::thread([this, raw] { Work(*raw); });
     slot = std::move(track);
   }
   Track& t = *slot;
@@ -158,17 +161,23 @@ Status TrackingService::AddJoints(const std::string& robot_id, std::uint64_t sen
 Status TrackingService::SubmitFrame(const std::string& robot_id, std::uint64_t session_id, std::uint64_t frame_id,
                                     DepthFrame frame) {
   const ClockEstimate clock = ClockOf(session_id);
-  std::lock_guard lock(mu_);
+  std::unique_lock lock(mu_);
   auto it = tracks_.find(robot_id);
   if (it == tracks_.end() || it->second->owner_id != session_id)
     return Status::FailedPrecondition(
         fmt::format("DepthFrame for robot '{}': this session asked for no tracking of it (TrackRequest)", robot_id));
-  Track& t = *it->second;
+  Track& t = *it->second;  // tracks are never erased once started
+  frame.time_s += clock.offset_s;
+  Pending job{std::move(frame), frame_id, SteadyClock::now(), clock};
+  if (options_.process_inline) {
+    lock.unlock();
+    Process(t, std::move(job));
+    return Status::Ok();
+  }
   {
     std::lock_guard track_lock(t.mu);
-    frame.time_s += clock.offset_s;
     if (t.slot) ++t.dropped;  // newest wins
-    t.slot = Track::Pending{std::move(frame), frame_id, SteadyClock::now(), clock};
+    t.slot = std::move(job);
   }
   t.wake.notify_one();
   return Status::Ok();
@@ -176,71 +185,78 @@ Status TrackingService::SubmitFrame(const std::string& robot_id, std::uint64_t s
 
 void TrackingService::Work(Track& t) {
   for (;;) {
-    Track::Pending job;
-    std::shared_ptr<Session> owner;
-    std::uint64_t owner_id = 0;
-    FrameConvention result_frame = FrameConvention::kRos;
-    Result<JointLookup> joints = Status::FailedPrecondition("no joint state");
+    Pending job;
     {
       std::unique_lock lock(t.mu);
       t.wake.wait(lock, [&] { return t.stopping || t.slot.has_value(); });
       if (t.stopping) return;
       job = std::move(*t.slot);
       t.slot.reset();
-      owner = t.owner.lock();
-      owner_id = t.owner_id;
-      result_frame = t.result_frame;
-      joints = t.history.At(job.frame.time_s);
     }
-    // Without a joint stream the robot is taken as standing at its zero pose.
-    const JointValues values = joints.ok() ? joints->joints : JointValues{};
-    Result<TrackResult> r = Status::Internal("not run");
-    {
-      std::lock_guard tracker_lock(t.tracker_mu);
-      r = t.tracker->Process(job.frame, values);
-    }
-    pb::ServerMessage message;
-    if (!r.ok()) {
-      auto* e = message.mutable_error();
-      e->set_code(pb::ERROR_CODE_BAD_DEPTH_FRAME);
-      e->set_message(fmt::format("DepthFrame {}: {}", job.frame_id, r.status().message()));
-    } else {
-      std::uint64_t processed, dropped;
-      {
-        std::lock_guard lock(t.mu);
-        processed = ++t.processed;
-        dropped = t.dropped;
-      }
-      pb::TrackingUpdate* u = message.mutable_tracking_update();
-      u->set_robot_id(t.robot_id);
-      u->set_session_id(owner_id);
-      u->set_frame_id(job.frame_id);
-      u->set_frame_time_s(job.frame.time_s);
-      u->set_frame_time_unix_s(UnixTimeOf(job.frame.time_s));
-      u->set_state(TrackStateName(r->state));
-      *u->mutable_t_world_base() = wire::PoseToProto(r->T_world_base, result_frame);
-      u->set_frame(wire::ToProto(result_frame));
-      for (int i = 0; i < 4; ++i)
-        for (int j = 0; j < 4; ++j) u->add_covariance(r->covariance(i, j));
-      u->mutable_joints()->set_robot_id(t.robot_id);
-      u->mutable_joints()->set_timestamp_s(job.frame.time_s);
-      for (const auto& [name, value] : values) {
-        u->mutable_joints()->add_names(name);
-        u->mutable_joints()->add_positions(value);
-      }
-      u->set_joint_staleness_s(joints.ok() ? joints->staleness_s : -1.0);
-      u->set_clock_offset_s(job.clock.offset_s);
-      u->set_clock_uncertainty_s(job.clock.uncertainty_s);
-      u->set_process_ms(r->total_ms);
-      u->set_frames_processed(processed);
-      u->set_frames_dropped(dropped);
-      u->set_agreement(r->agreement);
-      u->set_latency_ms(MsSince(job.received));
-    }
-    const auto frame = wire::SharedFrame(message);
-    if (owner) owner->SendFrame(frame);
-    if (message.has_tracking_update()) hub_.Publish(t.robot_id, frame, owner_id);
+    Process(t, std::move(job));
   }
+}
+
+void TrackingService::Process(Track& t, Pending job) {
+  std::shared_ptr<TrackingSink> owner;
+  std::uint64_t owner_id = 0;
+  FrameConvention result_frame = FrameConvention::kRos;
+  Result<JointLookup> joints = Status::FailedPrecondition("no joint state");
+  {
+    std::lock_guard lock(t.mu);
+    owner = t.owner.lock();
+    owner_id = t.owner_id;
+    result_frame = t.result_frame;
+    joints = t.history.At(job.frame.time_s);
+  }
+  // Without a joint stream the robot is taken as standing at its zero pose.
+  const JointValues values = joints.ok() ? joints->joints : JointValues{};
+  Result<TrackResult> r = Status::Internal("not run");
+  {
+    std::lock_guard tracker_lock(t.tracker_mu);
+    r = t.tracker->Process(job.frame, values);
+  }
+  pb::ServerMessage message;
+  if (!r.ok()) {
+    auto* e = message.mutable_error();
+    e->set_code(pb::ERROR_CODE_BAD_DEPTH_FRAME);
+    e->set_message(fmt::format("DepthFrame {}: {}", job.frame_id, r.status().message()));
+  } else {
+    std::uint64_t processed, dropped;
+    {
+      std::lock_guard lock(t.mu);
+      processed = ++t.processed;
+      dropped = t.dropped;
+    }
+    pb::TrackingUpdate* u = message.mutable_tracking_update();
+    u->set_robot_id(t.robot_id);
+    u->set_session_id(owner_id);
+    u->set_frame_id(job.frame_id);
+    u->set_frame_time_s(job.frame.time_s);
+    u->set_frame_time_unix_s(options_.unix_time_of(job.frame.time_s));
+    u->set_state(TrackStateName(r->state));
+    *u->mutable_t_world_base() = wire::PoseToProto(r->T_world_base, result_frame);
+    u->set_frame(wire::ToProto(result_frame));
+    for (int i = 0; i < 4; ++i)
+      for (int j = 0; j < 4; ++j) u->add_covariance(r->covariance(i, j));
+    u->mutable_joints()->set_robot_id(t.robot_id);
+    u->mutable_joints()->set_timestamp_s(job.frame.time_s);
+    for (const auto& [name, value] : values) {
+      u->mutable_joints()->add_names(name);
+      u->mutable_joints()->add_positions(value);
+    }
+    u->set_joint_staleness_s(joints.ok() ? joints->staleness_s : -1.0);
+    u->set_clock_offset_s(job.clock.offset_s);
+    u->set_clock_uncertainty_s(job.clock.uncertainty_s);
+    u->set_process_ms(r->total_ms);
+    u->set_frames_processed(processed);
+    u->set_frames_dropped(dropped);
+    u->set_agreement(r->agreement);
+    u->set_latency_ms(MsSince(job.received));
+  }
+  const auto frame = wire::SharedFrame(message);
+  if (owner) owner->SendFrame(frame);
+  if (message.has_tracking_update()) hub_.Publish(t.robot_id, frame, owner_id);
 }
 
 }  // namespace arref::server

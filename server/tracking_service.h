@@ -7,6 +7,7 @@
 
 #include <condition_variable>
 #include <cstdint>
+#include <functional>
 #include <map>
 #include <memory>
 #include <mutex>
@@ -22,9 +23,17 @@
 
 namespace arref::server {
 
-class Session;
 class SubscriberHub;
 struct ServedRobot;
+
+// Where a tracked robot's updates for the session that asked for them go: a live Session, or
+// the offline replay. SendFrame must be thread-safe (a worker thread calls it).
+class TrackingSink {
+ public:
+  virtual ~TrackingSink() = default;
+  virtual std::uint64_t id() const = 0;
+  virtual void SendFrame(std::shared_ptr<const std::string> frame) = 0;
+};
 
 struct ClockEstimate {
   double offset_s = 0.0;  // server clock minus the sender's
@@ -32,16 +41,26 @@ struct ClockEstimate {
   bool reported = false;
 };
 
+struct TrackingServiceOptions {
+  // true: each frame is processed in SubmitFrame's caller, none dropped, no threads (the offline
+  // replay, which must give the same updates however fast the machine is); false: one worker
+  // thread per robot, the newest frame wins (the server).
+  bool process_inline = false;
+  // A time on the server's clock as Unix time (TrackingUpdate.frame_time_unix_s); empty: by
+  // the wall clock now (UnixTimeOf). The replay maps it by the recording's clocks.
+  std::function<double(double server_time_s)> unix_time_of;
+};
+
 class TrackingService {
  public:
-  explicit TrackingService(SubscriberHub& hub);
+  explicit TrackingService(SubscriberHub& hub, TrackingServiceOptions options = {});
   ~TrackingService();  // Shutdown()
   // Stops and joins every worker (before the sessions' I/O goes away).
   void Shutdown();
 
   // Starts tracking `robot` with `session`'s frames from a first guess (replacing an earlier
   // request of any session), or stops it.
-  Status Start(const ServedRobot& robot, const std::string& robot_id, const std::shared_ptr<Session>& session,
+  Status Start(const ServedRobot& robot, const std::string& robot_id, const std::shared_ptr<TrackingSink>& session,
                const Iso3& T_world_base_seed, FrameConvention result_frame);
   void Stop(const std::string& robot_id, std::uint64_t session_id);
   // A joint sample stamped on the sender's clock (complete values of the robot's actuated joints).
@@ -60,7 +79,10 @@ class TrackingService {
   struct Track;
   ClockEstimate ClockOf(std::uint64_t session_id);
   void Work(Track& track);
+  struct Pending;
+  void Process(Track& track, Pending job);  // one frame: tracker, then the update to the sinks
   SubscriberHub& hub_;
+  TrackingServiceOptions options_;
   std::mutex mu_;
   std::map<std::string, std::unique_ptr<Track>> tracks_;
   std::map<std::uint64_t, ClockEstimate> clocks_;

@@ -4,6 +4,7 @@
 #include <spdlog/spdlog.h>
 
 #include <iostream>
+#include <map>
 #include <nlohmann/json.hpp>
 
 #include "cli_common.h"
@@ -42,6 +43,22 @@ nlohmann::json AnswerJson(const server::ReplayedAnswer& a) {
     j["server_time_s"] = a.message.pong().server_time_s();
     return j;
   }
+  if (a.message.has_tracking_update()) {
+    const pb::TrackingUpdate& u = a.message.tracking_update();
+    const auto& p = u.t_world_base();
+    j["tracking_update"] = u.frame_id();
+    j["robot_id"] = u.robot_id();
+    j["state"] = u.state();
+    j["frame"] = FrameName(u.frame());
+    j["frame_time_s"] = u.frame_time_s();
+    j["frame_time_unix_s"] = u.frame_time_unix_s();
+    j["position"] = {p.position().x(), p.position().y(), p.position().z()};
+    j["orientation"] = {p.orientation().x(), p.orientation().y(), p.orientation().z(), p.orientation().w()};
+    j["agreement"] = u.agreement();
+    j["joint_staleness_s"] = u.joint_staleness_s();
+    j["process_ms"] = u.process_ms();
+    return j;
+  }
   if (a.message.has_subscribed()) {
     j["subscribed"] = a.message.subscribed().robot_id();
     j["subscribing"] = a.message.subscribed().subscribed();
@@ -75,6 +92,15 @@ void PrintHuman(const nlohmann::json& j) {
     std::cout << fmt::format("t={:.3f} s: pong {}\n", j["t_s"].get<double>(), j["pong"].get<std::uint64_t>());
     return;
   }
+  if (j.contains("tracking_update")) {
+    const auto& p = j["position"];
+    std::cout << fmt::format("t={:.3f} s: frame {} of {}: {} at ({:+.4f}, {:+.4f}, {:+.4f}) {}, agreement {:.2f}\n",
+                             j["t_s"].get<double>(), j["tracking_update"].get<std::uint64_t>(),
+                             j["robot_id"].get<std::string>(), j["state"].get<std::string>(), p[0].get<double>(),
+                             p[1].get<double>(), p[2].get<double>(), j["frame"].get<std::string>(),
+                             j["agreement"].get<double>());
+    return;
+  }
   if (j.contains("subscribed")) {
     std::cout << fmt::format("t={:.3f} s: {} {}\n", j["t_s"].get<double>(),
                              j["subscribing"].get<bool>() ? "subscribed to" : "unsubscribed from",
@@ -105,8 +131,10 @@ int Run(const ReplayArgs& args) {
   auto config = args.config.empty() ? server::LoadDefaultServerConfig() : server::LoadServerConfig(args.config);
   if (!config.ok()) return Fail(config.status().WithContext("--config"));
   bool none_failed = true;
+  std::map<std::string, int> tracking_states;
   const auto print = [&](const server::ReplayedAnswer& a) {
     const nlohmann::json j = AnswerJson(a);
+    if (a.message.has_tracking_update()) ++tracking_states[a.message.tracking_update().state()];
     // A request the client cancelled is what it asked for, not a failure.
     if (a.message.has_result()) none_failed &= a.message.result().status() != pb::RESULT_STATUS_FAILED;
     if (args.json)
@@ -117,6 +145,11 @@ int Run(const ReplayArgs& args) {
   auto answers = server::ReplayRecording(*recording, *config,
                                          server::ReplayOptions{.recorded_registration = !args.config_registration}, print);
   if (!answers.ok()) return Fail(answers.status());
+  if (!tracking_states.empty()) {
+    std::string counts;
+    for (const auto& [state, n] : tracking_states) counts += fmt::format("{}{} {}", counts.empty() ? "" : ", ", n, state);
+    spdlog::info("replay: tracking updates: {}", counts);
+  }
   return none_failed ? kExitOk : kExitRegistrationFailed;
 }
 
@@ -124,14 +157,14 @@ int Run(const ReplayArgs& args) {
 
 void AddReplayCommand(CLI::App& app, int* exit_code) {
   auto args = std::make_shared<ReplayArgs>();
-  CLI::App* cmd = app.add_subcommand("replay", "Re-run a session recorded by arref-server offline and print each result");
+  CLI::App* cmd = app.add_subcommand("replay", "Re-run a session recorded by arref-server offline (registrations and tracking) and print each answer");
   cmd->add_option("file", args->file, "Recording (arref-server --record-dir DIR writes DIR/arref-session-*.arrec)")
       ->required();
   cmd->add_option("--config", args->config,
                   "Server config whose robots the recording's robot ids name (default: the built-in config)");
   cmd->add_flag("--config-registration", args->config_registration,
                 "Register with --config's registration settings instead of the recorded server's");
-  cmd->add_flag("--json", args->json, "One JSON object per answer (Result, Error, Pong, Subscribed) on stdout");
+  cmd->add_flag("--json", args->json, "One JSON object per answer (Result, TrackingUpdate, Error, Pong, Subscribed) on stdout");
   cmd->callback([args, exit_code] { *exit_code = Run(*args); });
 }
 

@@ -11,13 +11,14 @@ from ._proto import pb
 from .client import Client, read_frames
 
 FORMAT = "arref-recording"
-FORMAT_VERSION = 1
+FORMAT_VERSIONS = (1, 2)  # 2 adds answer records and RecordingHeader.start_server_time_s
 
 
 @dataclass
 class Recording:
     header: object                                # arref.v1.RecordingHeader
     messages: list = field(default_factory=list)  # arref.v1.RecordedMessage, in arrival order
+    answered_at_s: dict = field(default_factory=dict)  # request id -> when the server sent its Result
 
 
 def read_recording(path):
@@ -32,14 +33,21 @@ def read_recording(path):
         raise ValueError(f"{path}: not an arref recording: {e}") from e
     if header.format != FORMAT:
         raise ValueError(f"{path}: not an arref recording (format '{header.format}')")
-    if header.format_version != FORMAT_VERSION:
-        raise ValueError(f"{path}: format version {header.format_version}, this client reads {FORMAT_VERSION}")
+    if header.format_version not in FORMAT_VERSIONS:
+        raise ValueError(f"{path}: format version {header.format_version}, this client reads "
+                         f"{', '.join(map(str, FORMAT_VERSIONS))}")
     rest = data[pos + size:]
     try:
-        messages = list(read_frames(rest, pb.RecordedMessage))
+        records = list(read_frames(rest, pb.RecordedMessage))
     except ValueError as e:
         raise ValueError(f"{path}: {e}") from e
-    return Recording(header, messages)
+    rec = Recording(header)
+    for r in records:  # an answer record has no client message
+        if not r.HasField("message") and r.answered_request_id:
+            rec.answered_at_s[r.answered_request_id] = r.t_s
+        else:
+            rec.messages.append(r)
+    return rec
 
 
 @dataclass

@@ -11,6 +11,15 @@ Only OK results unless `publish_low_confidence`. Continuous referencing's Tracki
 (TrackingUpdate.frame_time_unix_s); only the states the tracker stands behind (tracking,
 reacquired, jump) unless `tracking_states` names others. It reconnects by itself and logs it.
 
+A frame must not be on both topics: tf2 keeps a frame whose first transform came on /tf_static
+in a static cache for good, and then answers every lookup, at any stamp, with the newest
+transform of either topic (checked against tf2_ros: tests/test_ros_bridge.py). So a robot that
+is tracked is published on /tf only: say so up front (`tracked: true` for the robot, or
+`--tracked ID`), and its registrations go to /tf too. A robot found tracked without it being
+said is moved to /tf then: its transform is withdrawn from /tf_static (listeners started from
+then on keep it dynamic), and a warning says that listeners already running keep the static
+cache until they restart.
+
 Config (YAML, all optional; flags override):
     server: {host: 127.0.0.1, port: 7311, auth_token: ""}
     world_frame: world             # parent of every robot unless a robot names its own
@@ -19,7 +28,7 @@ Config (YAML, all optional; flags override):
     tracking_states: [tracking, reacquired, jump]
     reconnect_s: 2.0
     robots:                        # default: every robot the server serves
-      - {id: kr5, parent_frame: hololens_world, child_frame: kr5_base_link}
+      - {id: kr5, parent_frame: hololens_world, child_frame: kr5_base_link, tracked: false}
 """
 
 import argparse
@@ -47,6 +56,7 @@ class RobotFrames:
     id: str
     parent_frame: str = ""  # "": the bridge's world_frame
     child_frame: str = ""   # "": the robot's base link as the server names it
+    tracked: bool = False   # every transform on /tf (see the module's help)
 
 
 @dataclass
@@ -61,6 +71,7 @@ class BridgeConfig:
     reconnect_s: float = 2.0
     ping_s: float = 30.0  # keeps the session open past the server's idle timeout
     robots: list = field(default_factory=list)  # RobotFrames; empty: every robot served
+    tracked: set = field(default_factory=set)   # ids of robots tracked (besides RobotFrames.tracked)
 
 
 def load_config(path):
@@ -85,7 +96,11 @@ def load_config(path):
     for i, r in enumerate(data.get("robots", []) or []):
         if "id" not in r:
             raise ValueError(f"{path}: robots[{i}] has no id")
-        c.robots.append(RobotFrames(str(r["id"]), str(r.get("parent_frame", "")), str(r.get("child_frame", ""))))
+        unknown = set(r) - {"id", "parent_frame", "child_frame", "tracked"}
+        if unknown:
+            raise ValueError(f"{path}: robots[{i}] has unknown keys {sorted(unknown)}")
+        c.robots.append(RobotFrames(str(r["id"]), str(r.get("parent_frame", "")), str(r.get("child_frame", "")),
+                                    bool(r.get("tracked", False))))
     return c
 
 
@@ -136,7 +151,8 @@ class Transform:
 
 def transform_of(pushed, frames):
     """The tf transform of a Result (T_world_base from its internal, ROS matrix) or of a
-    TrackingUpdate (its pose in ROS's convention), stamped with the time of its data."""
+    TrackingUpdate (its pose in ROS's convention), stamped with the time of its data; dynamic
+    for every transform of a tracked robot."""
     if isinstance(pushed, TrackingUpdate):
         p = pushed.ros_pose
         q = np.asarray(p[3:], dtype=np.float64)
@@ -144,7 +160,8 @@ def transform_of(pushed, frames):
                          tuple(q / np.linalg.norm(q)), dynamic=True)
     T = pushed.matrix
     stamp = pushed.proto.scene_time_unix_s
-    return Transform(frames.parent_frame, frames.child_frame, stamp, tuple(T[:3, 3]), quaternion_from_matrix(T[:3, :3]))
+    return Transform(frames.parent_frame, frames.child_frame, stamp, tuple(T[:3, 3]), quaternion_from_matrix(T[:3, :3]),
+                     dynamic=frames.tracked)
 
 
 class Bridge:
@@ -157,6 +174,10 @@ class Bridge:
         self.frames = {}  # robot id -> RobotFrames with names filled in
         self._tracking = {}  # robot id -> (state, updates published, skipped) since the last log line
 
+    def _found_tracked(self, robot_id):
+        """A robot seen tracked before a reconnection stays on /tf."""
+        return robot_id in self._tracking
+
     def _connect(self):
         c = Client(self.config.host, self.config.port, client_name="arref-ros-bridge",
                    auth_token=self.config.auth_token, timeout=30.0)
@@ -168,11 +189,12 @@ class Bridge:
                 log.warning("robot '%s' is not served by %s:%d (served: %s); skipped", r.id, self.config.host,
                             self.config.port, ", ".join(served))
                 continue
-            frames = RobotFrames(r.id, r.parent_frame or self.config.world_frame, r.child_frame or served[r.id].base_link)
+            frames = RobotFrames(r.id, r.parent_frame or self.config.world_frame, r.child_frame or served[r.id].base_link,
+                                 r.tracked or r.id in self.config.tracked or self._found_tracked(r.id))
             c.subscribe(r.id)
             self.frames[r.id] = frames
             log.info("publishing robot '%s' as %s -> %s on %s (tracking updates on /tf)", r.id, frames.parent_frame,
-                     frames.child_frame, "/tf_static" if self.config.static else "/tf")
+                     frames.child_frame, "/tf_static" if self.config.static and not frames.tracked else "/tf")
         return c
 
     def run(self):
@@ -233,6 +255,14 @@ class Bridge:
         """Each update of a configured state on /tf; the log says when a robot's tracking state
         changes (with the counts since), not every frame."""
         state, published, skipped = self._tracking.get(u.robot_id, ("", 0, 0))
+        if not frames.tracked:
+            frames.tracked = True
+            if self.config.static:
+                log.warning("robot '%s' is tracked but was not configured as tracked: from now on its transforms go "
+                            "to /tf only and it is withdrawn from /tf_static; tf listeners already running keep "
+                            "%s -> %s static (answering every stamp with the newest transform) until they restart. "
+                            "Set `tracked: true` for it (or --tracked %s) to avoid this.", u.robot_id,
+                            frames.parent_frame, frames.child_frame, u.robot_id)
         if u.state != state:
             log.info("robot '%s' tracking (session %d): %s from frame %d (%d updates published, %d skipped so far)",
                      u.robot_id, u.session_id, u.state, u.frame_id, published, skipped)
@@ -280,8 +310,10 @@ class RosPublisher:
         if self.static and not t.dynamic:
             self._latched[t.child] = m
             self._static.sendTransform(list(self._latched.values()))
-        else:
-            self._dynamic.sendTransform(m)
+            return
+        if self._latched.pop(t.child, None) is not None:  # now dynamic: new listeners must not see it static
+            self._static.sendTransform(list(self._latched.values()))
+        self._dynamic.sendTransform(m)
 
 
 def parser():
@@ -294,6 +326,8 @@ def parser():
     p.add_argument("--robot", action="append", default=[], metavar="ID[:CHILD[:PARENT]]",
                    help="publish this robot (repeatable), optionally naming its base frame and world frame")
     p.add_argument("--dynamic", action="store_true", help="publish on /tf instead of /tf_static")
+    p.add_argument("--tracked", action="append", default=[], metavar="ID",
+                   help="this robot is tracked: all its transforms on /tf (repeatable)")
     p.add_argument("--publish-low-confidence", action="store_true")
     p.add_argument("--tracking-states", help="comma-separated TrackingUpdate states published on /tf "
                                              f"(default {','.join(GOOD_STATES)}; any of {', '.join(TRACKING_STATES)})")
@@ -325,6 +359,7 @@ def config_from_args(args):
         for spec in args.robot:
             parts = spec.split(":")
             c.robots.append(RobotFrames(parts[0], parts[2] if len(parts) > 2 else "", parts[1] if len(parts) > 1 else ""))
+    c.tracked = c.tracked | set(args.tracked)
     return c
 
 

@@ -115,7 +115,8 @@ def test_sent_again_fast_and_at_pace_gives_the_same_results(recorded, tmp_path):
             np.testing.assert_allclose(again.matrix, live.matrix, atol=SAME_POSE_M)
     assert mock.returncode == 0, mock.stderr
     j = json.loads(mock.stdout)
-    assert [r["request_id"] for r in j["registrations"]] == [r.request_id for r in recorded["python"]]
+    # in the order they came back: sent back to back, the two requests run on both workers at once
+    assert sorted(r["request_id"] for r in j["registrations"]) == [r.request_id for r in recorded["python"]]
     assert [e["code"] for e in j["errors"]] == ["ERROR_CODE_UNKNOWN_ROBOT"]
 
     # At the original pace the messages reached the server no sooner after one another than

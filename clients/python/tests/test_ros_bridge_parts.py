@@ -97,3 +97,42 @@ def test_tracking_transform_is_dynamic_in_ros_frame_with_the_frame_time():
                      frames)
     np.testing.assert_allclose(u.translation, t.translation)
     np.testing.assert_allclose(u.rotation, t.rotation, atol=1e-12)
+
+
+class FakeRegistration:
+    """What Bridge._serve hands transform_of for an OK Result."""
+    status = "OK"
+    robot_id, request_id, session_id, message = "kr5", 1, 1, ""
+    matrix = np.eye(4)
+
+    class proto:
+        scene_time_unix_s = 1.7e9 - 5
+
+
+def test_a_robot_found_tracked_moves_to_tf_for_good():
+    from arref_client.ros_bridge import Bridge, RobotFrames, transform_of
+
+    published = []
+    bridge = Bridge(BridgeConfig(), published.append)
+    frames = RobotFrames("kr5", "hololens_world", "kr5_base")
+    assert not transform_of(FakeRegistration(), frames).dynamic  # /tf_static while nobody tracks it
+    bridge._on_tracking(tracking_update(), frames)
+    assert frames.tracked and published[-1].dynamic
+    assert transform_of(FakeRegistration(), frames).dynamic  # registrations too, from then on
+    assert bridge._found_tracked("kr5")  # and after a reconnection
+
+
+def test_tracked_robots_from_config_and_flags(tmp_path):
+    pytest.importorskip("yaml", reason="python3-yaml reads the bridge's config")
+    from arref_client.ros_bridge import RobotFrames, transform_of
+
+    path = tmp_path / "bridge.yaml"
+    path.write_text("robots:\n  - {id: kr5, tracked: true}\n  - {id: mh5}\n")
+    c = load_config(str(path))
+    assert [(r.id, r.tracked) for r in c.robots] == [("kr5", True), ("mh5", False)]
+    assert transform_of(FakeRegistration(), RobotFrames("kr5", "w", "b", tracked=True)).dynamic
+    c = config_from_args(parser().parse_args(["--tracked", "ur5", "--tracked", "kr5"]))
+    assert c.tracked == {"ur5", "kr5"} and c.robots == []  # still every robot served
+    path.write_text("robots:\n  - {id: kr5, trackd: true}\n")
+    with pytest.raises(ValueError, match="trackd"):
+        load_config(str(path))

@@ -249,3 +249,79 @@ def test_tracking_updates_appear_on_tf_with_their_frame_times(ros, tmp_path):
         bridge.stop(signal.SIGTERM)
         server.stop()
     assert bridge.proc.returncode == 0, bridge.log()
+
+
+SWITCH_CHILD = "kr5_registered_then_tracked"
+
+
+def static_frames(ros):
+    """Child frames of the last /tf_static message (a latched topic keeps only its last one)."""
+    return {t.child_frame_id for t in ros["static"][-1].transforms} if ros["static"] else set()
+
+
+def test_a_registered_robot_that_is_then_tracked_moves_to_tf(ros, cell, tmp_path):
+    """A robot first registered (on /tf_static) and then tracked is withdrawn from /tf_static and
+    published on /tf from then on. A listener started after that answers a lookup at a frame's
+    stamp with that frame's update; one that had the frame as static answers every stamp with
+    the newest transform, which is why the bridge never keeps a tracked robot static."""
+    import rospy
+    import tf2_ros
+
+    stream = TrackStream(tmp_path, 8, seconds=2.0)
+    messages = read_recording(stream.path).messages
+    server = ServerProcess(tmp_path)
+    bridge = Process([sys.executable, BRIDGE, "--port", str(server.port), "--robot", f"kr5:{SWITCH_CHILD}:{PARENT}"],
+                     str(tmp_path / "bridge.log"), ros["env"])
+    try:
+        wait_for(lambda: "publishing robot 'kr5'" in bridge.log(), f"the bridge to subscribe\n{bridge.log()}")
+        with Client("127.0.0.1", server.port) as c:
+            c.upload_mesh(cell.mesh["ply"])
+            registered = c.register("kr5", seed=cell.seed(0), method="arref-icp-fast")
+        assert registered.status == "OK", registered.message
+        wait_for(lambda: SWITCH_CHILD in static_frames(ros), f"the registration on /tf_static\n{bridge.log()}")
+        stale_buffer = ros["buffer"]  # has the frame as static now
+        wait_for(lambda: stale_buffer.can_transform(PARENT, SWITCH_CHILD, rospy.Time(0)), "the static frame in tf2")
+
+        with Client("127.0.0.1", server.port) as c:
+            first = c.track("kr5", messages)
+        assert any(u.good for u in first.updates)
+        wait_for(lambda: "is tracked but was not configured as tracked" in bridge.log(), f"the switch\n{bridge.log()}")
+        wait_for(lambda: SWITCH_CHILD not in static_frames(ros), f"the withdrawal from /tf_static\n{bridge.log()}")
+
+        fresh = tf2_ros.Buffer()
+        listener = tf2_ros.TransformListener(fresh)  # noqa: F841 (keeps the subscription)
+        time.sleep(1.0)  # its subscriptions connect (and get the latched /tf_static, now without the robot)
+        with Client("127.0.0.1", server.port) as c:
+            second = c.track("kr5", messages)
+        good = [u for u in second.updates if u.good]
+        assert len(good) > 10
+        wait_for(lambda: fresh.can_transform(PARENT, SWITCH_CHILD, rospy.Time.from_sec(good[-1].frame_time_unix_s)),
+                 f"the last tracking update in the fresh listener\n{bridge.log()}")
+        early = good[len(good) // 4]
+        answered = fresh.lookup_transform(PARENT, SWITCH_CHILD, rospy.Time.from_sec(early.frame_time_unix_s))
+        assert answered.transform.translation.x == pytest.approx(early.pose[0], abs=1e-9)
+        assert answered.transform.translation.y == pytest.approx(early.pose[1], abs=1e-9)
+        # tf2's static cache in the listener that saw the frame static: the newest, at any stamp
+        # (the newest update on /tf, which the earlier frame's is not).
+        newest = stale_buffer.lookup_transform(PARENT, SWITCH_CHILD, rospy.Time.from_sec(early.frame_time_unix_s))
+        if abs(good[-1].pose[0] - early.pose[0]) > 1e-6:
+            assert newest.transform.translation.x != pytest.approx(early.pose[0], abs=1e-9)
+
+        # A registration of the robot now goes to /tf, stamped with its data's time.
+        with Client("127.0.0.1", server.port) as c:
+            c.upload_mesh(cell.mesh["ply"])
+            again = c.register("kr5", seed=cell.seed(1), method="arref-icp-fast")
+        assert again.status == "OK"
+        stamp = again.proto.scene_time_unix_s
+
+        def on_tf():
+            return [t for m, _ in ros["dynamic"] for t in m.transforms
+                    if t.child_frame_id == SWITCH_CHILD and abs(t.header.stamp.to_sec() - stamp) < 1e-6]
+
+        t = wait_for(on_tf, f"the second registration on /tf\n{bridge.log()}")[0]
+        assert t.transform.translation.x == pytest.approx(again.matrix[0, 3], abs=1e-9)
+        assert SWITCH_CHILD not in static_frames(ros)
+    finally:
+        bridge.stop(signal.SIGTERM)
+        server.stop()
+    assert bridge.proc.returncode == 0, bridge.log()

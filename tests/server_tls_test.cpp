@@ -13,6 +13,7 @@
 #include <fstream>
 #include <string>
 #include <thread>
+#include <tuple>
 #include <vector>
 
 #include "headset_client.h"
@@ -39,19 +40,24 @@ void Run(const std::string& command) {
 // A CA and a certificate it signed for localhost and 127.0.0.1 (P-256 keys: fast to make).
 struct Pki {
   std::string ca, server_cert, server_key;
+  std::string client_cert, client_key;  // for a server with tls.client_ca
 };
 
 Pki MakePki(const std::string& dir, const std::string& name) {
   const std::string d = dir + "/" + name;
   const std::string ec = " -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes ";
-  Pki p{d + "_ca.pem", d + "_server.pem", d + "_server.key"};
+  Pki p{d + "_ca.pem", d + "_server.pem", d + "_server.key", d + "_client.pem", d + "_client.key"};
   std::ofstream(d + "_ext.cnf") << "subjectAltName=DNS:localhost,IP:127.0.0.1\nbasicConstraints=CA:FALSE\n"
                                    "extendedKeyUsage=serverAuth\n";
+  std::ofstream(d + "_client_ext.cnf") << "basicConstraints=CA:FALSE\nextendedKeyUsage=clientAuth\n";
   Run("openssl req -x509" + ec + "-keyout " + d + "_ca.key -out " + p.ca + " -days 2 -subj '/CN=arref test CA " + name +
       "'");
   Run("openssl req" + ec + "-keyout " + p.server_key + " -out " + d + "_server.csr -subj /CN=localhost");
   Run("openssl x509 -req -in " + d + "_server.csr -CA " + p.ca + " -CAkey " + d + "_ca.key -CAcreateserial -out " +
       p.server_cert + " -days 2 -extfile " + d + "_ext.cnf");
+  Run("openssl req" + ec + "-keyout " + p.client_key + " -out " + d + "_client.csr -subj /CN=headset-1");
+  Run("openssl x509 -req -in " + d + "_client.csr -CA " + p.ca + " -CAkey " + d + "_ca.key -CAcreateserial -out " +
+      p.client_cert + " -days 2 -extfile " + d + "_client_ext.cnf");
   return p;
 }
 
@@ -74,17 +80,21 @@ class Tls : public ::testing::Test {
 
   TlsClientOptions Trusting(const std::string& ca) const { return {.enabled = true, .ca_file = ca}; }
 
-  // Hello -> HelloReply over a fresh TLS connection trusting our CA.
-  void ExpectHelloWorks(const ServerProcess& server) const {
-    auto conn = Connection::Connect("127.0.0.1", server.port(), 10, 0, Trusting(pki_.ca));
+  // Hello -> HelloReply over a fresh TLS connection (by default trusting our CA).
+  void ExpectHelloWorks(const ServerProcess& server) const { ExpectHelloWorks(server, Trusting(pki_.ca)); }
+  void ExpectHelloWorks(const ServerProcess& server, const TlsClientOptions& tls) const {
+    auto conn = Connection::Connect("127.0.0.1", server.port(), 10, 0, tls);
     ASSERT_TRUE(conn.ok()) << conn.status().ToString() << "\n" << server.Log();
-    pb::ClientMessage m;
-    m.mutable_hello()->set_protocol_version(wire::kProtocolVersion);
-    m.mutable_hello()->set_client_name("tls-test");
-    ASSERT_TRUE(conn->Send(m).ok());
+    ASSERT_TRUE(conn->Send(Hello()).ok());
     auto reply = conn->Receive(kReplyTimeout);
     ASSERT_TRUE(reply.ok()) << reply.status().ToString();
     EXPECT_TRUE(reply->has_hello_reply());
+  }
+  static pb::ClientMessage Hello() {
+    pb::ClientMessage m;
+    m.mutable_hello()->set_protocol_version(wire::kProtocolVersion);
+    m.mutable_hello()->set_client_name("tls-test");
+    return m;
   }
 
   ScopedTempDir dir_;
@@ -209,6 +219,37 @@ TEST_F(Tls, StalledHandshakesCountAsPendingAndCannotLockHeadsetsOut) {
   EXPECT_GE(first_s, 0) << server.Log();
   ExpectHelloWorks(server);
   for (int fd : stalled) close(fd);
+}
+
+// tls.client_ca: only clients holding a certificate that CA signed get a session.
+TEST_F(Tls, WithAClientCaOnlyClientsWithItsCertificatesGetIn) {
+  ServerSettings s = Settings();
+  s.sections_yaml += "  client_ca: " + pki_.ca + "\n";
+  ServerProcess server(s);
+  TlsClientOptions with_certificate = Trusting(pki_.ca);
+  with_certificate.certificate = pki_.client_cert;
+  with_certificate.private_key = pki_.client_key;
+  ExpectHelloWorks(server, with_certificate);
+
+  const std::vector<std::tuple<std::string, std::string, std::string>> refused{
+      {"no certificate", "", ""}, {"a certificate another CA signed", other_.client_cert, other_.client_key}};
+  for (const auto& [what, certificate, key] : refused) {
+    TlsClientOptions o = Trusting(pki_.ca);
+    o.certificate = certificate;
+    o.private_key = key;
+    // TLS 1.3 finishes the client's side of the handshake before the server has checked its
+    // certificate: the refusal shows at the connect or at the first read.
+    auto conn = Connection::Connect("127.0.0.1", server.port(), 10, 0, o);
+    if (!conn.ok()) {
+      EXPECT_NE(conn.status().message().find("TLS handshake"), std::string::npos) << what << ": " << conn.status().ToString();
+      continue;
+    }
+    (void)conn->Send(Hello());
+    const auto reply = conn->Receive(30);
+    EXPECT_FALSE(reply.ok() && reply->has_hello_reply()) << what << " was let in";
+  }
+  EXPECT_NE(server.Log().find("TLS handshake failed"), std::string::npos) << server.Log();
+  EXPECT_TRUE(server.alive());
 }
 
 TEST_F(Tls, TlsConfigErrorsNameTheFileAndTheProblem) {

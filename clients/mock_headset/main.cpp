@@ -333,7 +333,9 @@ int main(int argc, char** argv) {
   spdlog::set_level(spdlog::level::from_str(args.log_level));
   args.options.port = static_cast<std::uint16_t>(args.port);
   args.options.misbehaviour = ChosenMisbehaviour(args);
-  if (!args.options.tls.ca_file.empty()) args.options.tls.enabled = true;
+  const TlsClientOptions& tls = args.options.tls;
+  if (!tls.ca_file.empty() || !tls.server_name.empty() || !tls.certificate.empty())
+    args.options.tls.enabled = true;  // any TLS option means TLS
   if (args.track) return RunTrack(args);
   if (args.clients == 1 && args.options.repeat == 1 && !args.json)
     args.options.on_progress = [](const wire::pb::Progress& p) {

@@ -136,7 +136,8 @@ Result<std::size_t> ClientTls::Read(char* data, std::size_t size) {
     case SSL_ERROR_ZERO_RETURN: return std::size_t{0};
     case SSL_ERROR_WANT_READ: return Status::ResourceExhausted("no reply within the socket's timeout");
     case SSL_ERROR_SYSCALL:
-      if (errno == EAGAIN || errno == EWOULDBLOCK) return Status::ResourceExhausted("no reply within the socket's timeout");
+      if (errno == EAGAIN || errno == EWOULDBLOCK)
+        return Status::ResourceExhausted("no reply within the socket's timeout");
       [[fallthrough]];
     default: return Unavailable("receiving over TLS: " + OpenSslErrors());
   }

@@ -152,8 +152,8 @@ Result<pb::ServerMessage> Connection::Receive(double timeout_s) {
       if (ready == 0) return Status::ResourceExhausted(fmt::format("no reply within {} s", timeout_s));
     }
     if (Status s = ReadSome(static_cast<double>(std::max<long long>(left, 1)) / 1000.0); !s.ok()) {
-      if (s.code() == StatusCode::kResourceExhausted) return Status::ResourceExhausted(fmt::format("no reply within {} s", timeout_s));
-      return s;
+      if (s.code() != StatusCode::kResourceExhausted) return s;
+      return Status::ResourceExhausted(fmt::format("no reply within {} s", timeout_s));
     }
   }
   return Status(StatusCode::kUnavailable, "not connected");

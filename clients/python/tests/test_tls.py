@@ -5,6 +5,7 @@ import json
 import pytest
 
 from arref_client import Client, errors, tls_context
+from arref_client.recording import read_recording
 from arref_testing import Pki, ServerProcess, python_cli
 from test_client import assert_near_truth
 
@@ -60,3 +61,13 @@ def test_cli_takes_the_ca(tls_server, pki, other_pki):
     bad = python_cli("--port", str(tls_server.port), "--tls-ca", other_pki.ca, "info")
     assert bad.returncode == 7  # no connection
     assert "certificate did not verify" in bad.stderr
+
+
+def test_tracking_over_tls_reads_every_update(tls_server, pki, track_stream):
+    # Tracking polls the socket: TLS may hold decrypted updates that select() does not announce.
+    stream = read_recording(track_stream.path).messages
+    with Client("127.0.0.1", tls_server.port, tls_ca=pki.ca) as c:
+        out = c.track("kr5", stream)
+    assert not out.errors, [str(e) for e in out.errors]
+    assert out.updates
+    assert len(out.updates) + out.frames_dropped == out.frames_sent

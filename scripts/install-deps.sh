@@ -8,6 +8,7 @@ PACKAGES=(
   libeigen3-dev libspdlog-dev liburdfdom-dev libtinyxml-dev libassimp-dev libnanoflann-dev libtbb-dev
   libpcl-dev libembree-dev libopen3d-dev
   libboost-dev libprotobuf-dev protobuf-compiler libyaml-cpp-dev libsystemd-dev
+  libssl-dev openssl  # TLS (server, mock headset); the tests make their throwaway CA with openssl
   libcli11-dev nlohmann-json3-dev
   libgtest-dev libgmock-dev libbenchmark-dev
   gnuplot-nox

@@ -70,9 +70,10 @@ JobOutcome RunRegistrationJob(Job& job, RobotRegistry& robots) {
 }
 
 struct Server::Impl {
-  explicit Impl(ServerConfig c, std::unique_ptr<RobotRegistry> r)
+  Impl(ServerConfig c, std::unique_ptr<RobotRegistry> r, std::unique_ptr<TlsContext> t)
       : config(std::move(c)),
         robots(std::move(r)),
+        tls(std::move(t)),
         memory(config.limits.memory_budget_bytes),
         jobs(static_cast<std::size_t>(config.workers), config.queue_size,
              [this](Job& job) { return RunRegistrationJob(job, *robots); }),
@@ -85,7 +86,8 @@ struct Server::Impl {
             memory,
             [this](std::uint64_t id) { return AdmitSession(id); },
             [this](std::uint64_t id) { OnSessionClosed(id); },
-            ARREF_VERSION},
+            ARREF_VERSION,
+            tls.get()},
         strand(net::make_strand(ioc)),
         acceptor(strand),
         signals(strand, SIGINT, SIGTERM),
@@ -122,6 +124,7 @@ struct Server::Impl {
 
   ServerConfig config;
   std::unique_ptr<RobotRegistry> robots;
+  std::unique_ptr<TlsContext> tls;  // nullptr: plain TCP
   SubscriberHub hub;
   TrackingService tracking{hub};
   std::atomic<bool> shutting_down{false};
@@ -369,8 +372,14 @@ Server::~Server() = default;
 
 Result<std::unique_ptr<Server>> Server::Create(ServerConfig config) {
   ARREF_RETURN_IF_ERROR(ValidateServerConfig(config));
+  std::unique_ptr<TlsContext> tls;
+  if (config.tls.enabled()) {
+    ARREF_ASSIGN_OR_RETURN(tls, TlsContext::Load(config.tls));
+  }
+  if (const std::string risk = ClearTextTokenRisk(config); !risk.empty())  // allowed, or validation refused it
+    spdlog::warn("{} (server.allow_plaintext_token is set)", risk);
   ARREF_ASSIGN_OR_RETURN(auto robots, RobotRegistry::Load(config.robots, config.model_cache_entries));
-  auto impl = std::make_unique<Impl>(std::move(config), std::move(robots));
+  auto impl = std::make_unique<Impl>(std::move(config), std::move(robots), std::move(tls));
   return std::unique_ptr<Server>(new Server(std::move(impl)));
 }
 
@@ -379,8 +388,9 @@ Status Server::Run() {
   ARREF_RETURN_IF_ERROR(s.Listen());
   // The one machine-readable line on stdout (logs go to stderr): tests and scripts read the port.
   std::cout << "listening on " << s.config.address << ":" << s.port << std::endl;
-  spdlog::info("arref-server {} listening on {}:{} ({} workers, queue {}, robots: {})", ARREF_VERSION,
-               s.config.address, s.port.load(), s.config.workers, s.config.queue_size, s.robots->Ids());
+  spdlog::info("arref-server {} listening on {}:{} ({} workers, queue {}, robots: {}; {})", ARREF_VERSION,
+               s.config.address, s.port.load(), s.config.workers, s.config.queue_size, s.robots->Ids(),
+               s.tls ? s.tls->description() : "plain TCP, no TLS");
   s.signals.async_wait([&s](const boost::system::error_code& ec, int signal) {
     if (!ec) s.BeginShutdown(signal == SIGTERM ? "SIGTERM" : "SIGINT");
     if (!ec)  // a second signal escalates (cancels running jobs)

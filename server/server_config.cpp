@@ -3,6 +3,8 @@
 #include <fmt/format.h>
 #include <yaml-cpp/yaml.h>
 
+#include <boost/asio/ip/address.hpp>
+
 #include <filesystem>
 #include <fstream>
 #include <limits>
@@ -66,7 +68,7 @@ std::string Resolve(const std::string& path, const std::string& base_dir) {
 Status ReadServer(const YAML::Node& n, ServerConfig& c) {
   ARREF_RETURN_IF_ERROR(CheckKeys(n, "server", {"address", "port", "io_threads", "workers", "queue_size",
                                                 "idle_timeout_s", "hello_timeout_s", "frame_timeout_s", "send_timeout_s", "shutdown_grace_s",
-                                                "auth_token", "log_level", "record_dir"}));
+                                                "auth_token", "allow_plaintext_token", "log_level", "record_dir"}));
   Read(n, "address", c.address);
   Read(n, "port", c.port);
   Read(n, "io_threads", c.io_threads);
@@ -78,8 +80,19 @@ Status ReadServer(const YAML::Node& n, ServerConfig& c) {
   Read(n, "send_timeout_s", c.send_timeout_s);
   Read(n, "shutdown_grace_s", c.shutdown_grace_s);
   Read(n, "auth_token", c.auth_token);
+  Read(n, "allow_plaintext_token", c.allow_plaintext_token);
   Read(n, "log_level", c.log_level);
   Read(n, "record_dir", c.record_dir);
+  return Status::Ok();
+}
+
+Status ReadTls(const YAML::Node& n, const std::string& base_dir, TlsConfig& t) {
+  ARREF_RETURN_IF_ERROR(CheckKeys(n, "tls", {"certificate_chain", "private_key", "client_ca"}));
+  Read(n, "certificate_chain", t.certificate_chain);
+  Read(n, "private_key", t.private_key);
+  Read(n, "client_ca", t.client_ca);
+  for (std::string* path : {&t.certificate_chain, &t.private_key, &t.client_ca})
+    if (!path->empty()) *path = Resolve(*path, base_dir);
   return Status::Ok();
 }
 
@@ -172,15 +185,36 @@ Status ReadRobots(const YAML::Node& n, const std::string& base_dir, ServerConfig
 }
 
 Status ReadAll(const YAML::Node& root, const std::string& base_dir, ServerConfig& c) {
-  ARREF_RETURN_IF_ERROR(CheckKeys(root, "config", {"server", "limits", "registration", "robots"}));
+  ARREF_RETURN_IF_ERROR(CheckKeys(root, "config", {"server", "tls", "limits", "registration", "robots"}));
   if (root["server"]) ARREF_RETURN_IF_ERROR(ReadServer(root["server"], c));
+  if (root["tls"]) ARREF_RETURN_IF_ERROR(ReadTls(root["tls"], base_dir, c.tls));
   if (root["limits"]) ARREF_RETURN_IF_ERROR(ReadLimits(root["limits"], c.limits));
   if (root["registration"]) ARREF_RETURN_IF_ERROR(ReadRegistration(root["registration"], c));
   if (root["robots"]) ARREF_RETURN_IF_ERROR(ReadRobots(root["robots"], base_dir, c));
   return Status::Ok();
 }
 
+bool IsLoopback(const std::string& address) {
+  boost::system::error_code ec;
+  const auto parsed = boost::asio::ip::make_address(address, ec);
+  return !ec && parsed.is_loopback();
+}
+
+Status ValidateTls(const TlsConfig& t) {
+  if (t.certificate_chain.empty() != t.private_key.empty())
+    return Status::InvalidArgument("tls: certificate_chain and private_key go together (one is set, the other empty)");
+  if (!t.client_ca.empty() && !t.enabled())
+    return Status::InvalidArgument("tls.client_ca is set but TLS is off: set tls.certificate_chain and tls.private_key");
+  return Status::Ok();
+}
+
 }  // namespace
+
+std::string ClearTextTokenRisk(const ServerConfig& c) {
+  if (c.auth_token.empty() || c.tls.enabled() || IsLoopback(c.address)) return "";
+  return fmt::format("server.auth_token is set, TLS is off and the server listens on {}, which is not loopback: "
+                     "every headset's token would cross the network in clear text", c.address);
+}
 
 Status ValidateServerConfig(const ServerConfig& c) {
   if (c.robots.empty()) return Status::InvalidArgument("no robots configured (robots: [...])");
@@ -203,6 +237,10 @@ Status ValidateServerConfig(const ServerConfig& c) {
     return Status::InvalidArgument(fmt::format(
         "registration.tracking_error_m ({}) must be in [0, 1] and tracking_error_deg ({}) in [0, 30]", e.position_m,
         e.orientation_deg));
+  ARREF_RETURN_IF_ERROR(ValidateTls(c.tls));
+  if (const std::string risk = ClearTextTokenRisk(c); !risk.empty() && !c.allow_plaintext_token)
+    return Status::InvalidArgument(risk + ". Configure tls (certificate_chain, private_key), listen on 127.0.0.1, or set "
+                                   "server.allow_plaintext_token: true if the network is trusted");
   return Status::Ok();
 }
 

@@ -37,6 +37,15 @@ struct ServerLimits {
   std::size_t max_send_queue_messages = 4096;
 };
 
+// TLS on the listening socket (config section `tls`). Without a certificate the server speaks
+// plain TCP, as it always did; files are PEM and are read once, at startup.
+struct TlsConfig {
+  std::string certificate_chain;  // the server's certificate, then any intermediates
+  std::string private_key;        // unencrypted (the daemon has no one to ask for a passphrase)
+  std::string client_ca;          // non-empty: every client must present a certificate this CA signed
+  bool enabled() const { return !certificate_chain.empty() || !private_key.empty(); }
+};
+
 struct ServerConfig {
   std::string address = "0.0.0.0";
   std::uint16_t port = 7311;
@@ -49,10 +58,14 @@ struct ServerConfig {
   double send_timeout_s = 30.0;    // one write may take this long before the session is dropped
   double shutdown_grace_s = 30.0;  // running jobs may finish within this on SIGTERM
   std::string auth_token;          // empty: no token required
+  // The token crosses the network in clear text when TLS is off: refused on a non-loopback
+  // address unless this is set (ClearTextTokenRisk).
+  bool allow_plaintext_token = false;
   std::string log_level = "info";
   // Non-empty: every session is recorded to a file in this folder (wire/recording.h), its
   // client messages with their arrival times; never the auth token.
   std::string record_dir;
+  TlsConfig tls;
   ServerLimits limits;
   RegistrationOptions registration;
   std::size_t model_cache_entries = 32;
@@ -67,6 +80,10 @@ Result<ServerConfig> LoadServerConfig(const std::string& path);
 // The built-in default: config/arref-server.yaml found via FindConfigFile.
 Result<ServerConfig> LoadDefaultServerConfig();
 Status ValidateServerConfig(const ServerConfig& config);
+// Why the configured auth token would cross the network in clear text (a token, no TLS, a
+// listen address that is not loopback), or "" when it would not. Validation refuses such a
+// config unless server.allow_plaintext_token is set; the server then warns with this text.
+std::string ClearTextTokenRisk(const ServerConfig& config);
 
 // The "registration" section of a config with this config's values (what a recording carries,
 // so that a replay registers as the server did). ParseServerConfig reads it back.

@@ -30,17 +30,18 @@ std::chrono::milliseconds Seconds(double s) { return std::chrono::milliseconds(s
 // ---------------------------------------------------------------- Session: life cycle
 
 Session::Session(tcp::socket socket, ServerContext& context, std::uint64_t id)
-    : socket_(std::move(socket)),
+    : transport_(std::move(socket), context.tls),
       ctx_(context),
       id_(id),
+      handshaking_(transport_.encrypted()),
       rx_(std::min(kMaxHelloBytes, context.config.limits.max_message_bytes), 4 * kReadChunk),
-      idle_timer_(socket_.get_executor()),
-      hello_timer_(socket_.get_executor()),
-      frame_timer_(socket_.get_executor()),
-      write_timer_(socket_.get_executor()),
-      linger_timer_(socket_.get_executor()) {
+      idle_timer_(transport_.executor()),
+      hello_timer_(transport_.executor()),
+      frame_timer_(transport_.executor()),
+      write_timer_(transport_.executor()),
+      linger_timer_(transport_.executor()) {
   boost::system::error_code ec;
-  const auto endpoint = socket_.remote_endpoint(ec);
+  const auto endpoint = transport_.socket().remote_endpoint(ec);
   peer_ = ec ? "?" : endpoint.address().to_string() + ":" + std::to_string(endpoint.port());
   connected_unix_s_ = std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
 }
@@ -48,16 +49,37 @@ Session::Session(tcp::socket socket, ServerContext& context, std::uint64_t id)
 Session::~Session() { spdlog::debug("session {} destroyed", id_); }
 
 void Session::Start() {
-  net::dispatch(socket_.get_executor(), [self = shared_from_this()] {
-    spdlog::info("session {}: connected from {}", self->id_, self->peer_);
+  net::dispatch(transport_.executor(), [self = shared_from_this()] {
+    spdlog::info("session {}: connected from {}{}", self->id_, self->peer_, self->transport_.encrypted() ? " (TLS)" : "");
     self->ArmIdleTimer();
     self->ArmHelloTimer();
-    self->ReadMore();
+    if (self->transport_.encrypted())
+      self->StartTls();
+    else
+      self->ReadMore();
   });
 }
 
+void Session::StartTls() {
+  transport_.AsyncHandshake([self = shared_from_this()](const boost::system::error_code& ec) {
+    self->OnTlsHandshake(ec);
+  });
+}
+
+// A failed handshake is the client's (plaintext, or it does not trust our certificate, or it
+// has none that tls.client_ca signed): that connection closes, nothing else notices.
+void Session::OnTlsHandshake(const boost::system::error_code& ec) {
+  if (state_ >= State::kClosing) return;
+  if (ec) {
+    spdlog::warn("session {} ({}): TLS handshake failed: {}", id_, peer_, ec.message());
+    return CloseNow("TLS handshake failed: " + ec.message());
+  }
+  handshaking_ = false;
+  ReadMore();
+}
+
 void Session::Reject(pb::ErrorCode code, const std::string& message) {
-  net::dispatch(socket_.get_executor(), [self = shared_from_this(), code, message] {
+  net::dispatch(transport_.executor(), [self = shared_from_this(), code, message] {
     self->FailAndClose(code, message);
   });
 }
@@ -76,13 +98,15 @@ void Session::ArmIdleTimer() {
   });
 }
 
-// Connections that never say Hello must not hold a slot: they get hello_timeout_s.
+// Connections that never say Hello must not hold a slot: they get hello_timeout_s, the TLS
+// handshake included.
 void Session::ArmHelloTimer() {
   hello_timer_.expires_after(Seconds(ctx_.config.hello_timeout_s));
   hello_timer_.async_wait([self = shared_from_this()](const boost::system::error_code& ec) {
     if (ec || self->state_ != State::kAwaitHello) return;
     self->FailAndClose(pb::ERROR_CODE_HANDSHAKE_TIMEOUT,
-                       fmt::format("no Hello within {} s of connecting (server.hello_timeout_s)",
+                       fmt::format("no {} within {} s of connecting (server.hello_timeout_s)",
+                                   self->handshaking_ ? "completed TLS handshake" : "Hello",
                                    self->ctx_.config.hello_timeout_s));
   });
 }
@@ -115,10 +139,10 @@ void Session::UpdateFrameTimer(bool frame_completed) {
 void Session::ReadMore() {
   if (state_ >= State::kClosing) return;
   const auto space = rx_.Buffer(kReadChunk);
-  socket_.async_read_some(net::buffer(space.data(), space.size()),
-                          [self = shared_from_this()](const boost::system::error_code& ec, std::size_t n) {
-                            self->OnRead(ec, n);
-                          });
+  transport_.AsyncReadSome(net::buffer(space.data(), space.size()),
+                           [self = shared_from_this()](const boost::system::error_code& ec, std::size_t n) {
+                             self->OnRead(ec, n);
+                           });
 }
 
 void Session::OnRead(const boost::system::error_code& ec, std::size_t bytes) {
@@ -136,7 +160,7 @@ void Session::OnRead(const boost::system::error_code& ec, std::size_t bytes) {
 // A half-closed client (shutdown(SHUT_WR)) still gets the results of its accepted requests;
 // the session closes once they are written.
 void Session::OnReadEnd(const boost::system::error_code& ec) {
-  if (ec != net::error::eof) return CloseNow("read failed: " + ec.message());
+  if (!Transport::IsEndOfStream(ec)) return CloseNow("read failed: " + ec.message());
   if (state_ == State::kReady && !in_flight_.empty()) {
     read_closed_ = true;
     if (frame_timer_armed_) frame_timer_.cancel();
@@ -642,13 +666,13 @@ void Session::KeepRecording(const Status& written) {
 // ---------------------------------------------------------------- writing
 
 void Session::SendFrame(std::shared_ptr<const std::string> frame) {
-  net::post(socket_.get_executor(), [self = shared_from_this(), frame = std::move(frame)]() mutable {
+  net::post(transport_.executor(), [self = shared_from_this(), frame = std::move(frame)]() mutable {
     self->Enqueue(std::move(frame));
   });
 }
 
 void Session::DeliverResult(std::uint64_t request_id, std::shared_ptr<const std::string> frame) {
-  net::post(socket_.get_executor(), [self = shared_from_this(), request_id, frame = std::move(frame)]() mutable {
+  net::post(transport_.executor(), [self = shared_from_this(), request_id, frame = std::move(frame)]() mutable {
     self->in_flight_.erase(request_id);
     self->RecordAnswer(request_id);
     self->Enqueue(std::move(frame));
@@ -658,7 +682,7 @@ void Session::DeliverResult(std::uint64_t request_id, std::shared_ptr<const std:
 }
 
 void Session::NotifyShutdown(double grace_s) {
-  net::post(socket_.get_executor(), [self = shared_from_this(), grace_s] {
+  net::post(transport_.executor(), [self = shared_from_this(), grace_s] {
     if (self->shutdown_notified_ || self->state_ != State::kReady) return;
     self->shutdown_notified_ = true;
     pb::ServerMessage message;
@@ -669,7 +693,7 @@ void Session::NotifyShutdown(double grace_s) {
 }
 
 void Session::CloseGracefully(const std::string& reason) {
-  net::post(socket_.get_executor(), [self = shared_from_this(), reason] { self->StartClosing(reason); });
+  net::post(transport_.executor(), [self = shared_from_this(), reason] { self->StartClosing(reason); });
 }
 
 void Session::Send(const pb::ServerMessage& message) { Enqueue(wire::SharedFrame(message)); }
@@ -687,7 +711,7 @@ void Session::SendError(pb::ErrorCode code, const std::string& message, std::uin
 }
 
 void Session::Enqueue(std::shared_ptr<const std::string> frame) {
-  if (state_ >= State::kClosing) return;
+  if (state_ >= State::kClosing || handshaking_) return;
   const auto& limits = ctx_.config.limits;
   if (write_queue_bytes_ + frame->size() > limits.max_send_queue_bytes ||
       write_queue_.size() + 1 > limits.max_send_queue_messages) {
@@ -715,10 +739,10 @@ void Session::WriteNext() {
     self->CloseNow(fmt::format("dropped: a write stalled for {} s (server.send_timeout_s)",
                                self->ctx_.config.send_timeout_s));
   });
-  net::async_write(socket_, net::buffer(*write_queue_.front()),
-                   [self = shared_from_this()](const boost::system::error_code& ec, std::size_t n) {
-                     self->OnWrite(ec, n);
-                   });
+  transport_.AsyncWrite(net::buffer(*write_queue_.front()),
+                        [self = shared_from_this()](const boost::system::error_code& ec, std::size_t n) {
+                          self->OnWrite(ec, n);
+                        });
 }
 
 void Session::OnWrite(const boost::system::error_code& ec, std::size_t /*bytes*/) {
@@ -738,6 +762,7 @@ void Session::OnWrite(const boost::system::error_code& ec, std::size_t /*bytes*/
 void Session::FailAndClose(pb::ErrorCode code, const std::string& message) {
   if (state_ >= State::kClosing) return;
   spdlog::warn("session {} ({}): closing: {}: {}", id_, peer_, wire::ErrorCodeName(code), message);
+  if (handshaking_) return CloseNow(std::string(wire::ErrorCodeName(code)) + ": " + message);
   pb::ServerMessage reply;
   auto* e = reply.mutable_error();
   e->set_code(code);
@@ -754,8 +779,7 @@ void Session::StartClosing(const std::string& reason) {
   idle_timer_.cancel();
   hello_timer_.cancel();
   frame_timer_.cancel();
-  boost::system::error_code ignored;
-  socket_.shutdown(tcp::socket::shutdown_receive, ignored);  // ends the pending read
+  transport_.ShutdownReceive();  // ends the pending read
   if (!writing_) return CloseNow(reason);
   linger_timer_.expires_after(kLinger);
   linger_timer_.async_wait([self = shared_from_this()](const boost::system::error_code& ec) {
@@ -776,9 +800,7 @@ void Session::CloseNow(const std::string& reason) {
   frame_timer_.cancel();
   write_timer_.cancel();
   linger_timer_.cancel();
-  boost::system::error_code ignored;
-  socket_.shutdown(tcp::socket::shutdown_both, ignored);
-  socket_.close(ignored);
+  transport_.Close();
   write_queue_.clear();
   write_queue_bytes_ = 0;
   frame_memory_.Release();

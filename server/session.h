@@ -32,12 +32,10 @@
 #include "server_config.h"
 #include "subscriber_hub.h"
 #include "tracking_service.h"
+#include "transport.h"
 #include "wire.h"
 
 namespace arref::server {
-
-namespace net = boost::asio;
-using tcp = net::ip::tcp;
 
 // What every session shares: set up once by the server.
 struct ServerContext {
@@ -53,6 +51,7 @@ struct ServerContext {
   std::function<Status(std::uint64_t session_id)> on_hello;
   std::function<void(std::uint64_t session_id)> on_session_closed;
   std::string server_version;
+  TlsContext* tls;  // nullptr: plain TCP
 };
 
 // The largest frame accepted before Hello (Hello itself is a few hundred bytes), so that
@@ -80,6 +79,10 @@ class Session : public TrackingSink, public std::enable_shared_from_this<Session
 
  private:
   enum class State { kAwaitHello, kReady, kClosing, kClosed };
+
+  // TLS: the handshake runs before the first read, under the Hello deadline.
+  void StartTls();
+  void OnTlsHandshake(const boost::system::error_code& ec);
 
   // Reading and framing.
   void ReadMore();
@@ -134,10 +137,13 @@ class Session : public TrackingSink, public std::enable_shared_from_this<Session
   void StartClosing(const std::string& reason);
   void CloseNow(const std::string& reason);  // drops unsent data
 
-  tcp::socket socket_;
+  Transport transport_;
   ServerContext& ctx_;
   const std::uint64_t id_;
   State state_ = State::kAwaitHello;
+  // TLS not yet established (a refused connection never starts it): nothing can be sent, not
+  // even an Error, so a fatal error just closes.
+  bool handshaking_;
   std::string peer_;
   std::string client_name_;
   std::string close_reason_;

@@ -60,6 +60,46 @@ TEST(ServerConfig, HardeningLimitsAreReadAndChecked) {
 }
 
 // What a recording carries so that a replay registers as the server did.
+TEST(ServerConfig, TlsPathsResolveAgainstTheConfigsFolder) {
+  auto config = ParseServerConfig(
+      "tls: {certificate_chain: tls/server.pem, private_key: /etc/arref/server.key, client_ca: ca.pem}\n"
+      "robots: [{id: kr5, urdf: builtin}]\n", "/etc/arref");
+  ASSERT_TRUE(config.ok()) << config.status().ToString();
+  EXPECT_TRUE(config->tls.enabled());
+  EXPECT_EQ(config->tls.certificate_chain, "/etc/arref/tls/server.pem");
+  EXPECT_EQ(config->tls.private_key, "/etc/arref/server.key");
+  EXPECT_EQ(config->tls.client_ca, "/etc/arref/ca.pem");
+  EXPECT_TRUE(ValidateServerConfig(*config).ok());
+
+  auto typo = ParseServerConfig("tls: {certificate: a.pem}\n", "/tmp");
+  ASSERT_FALSE(typo.ok());
+  EXPECT_NE(typo.status().message().find("tls: unknown key 'certificate'"), std::string::npos) << typo.status().message();
+
+  auto half = ParseServerConfig("tls: {private_key: k.pem}\nrobots: [{id: kr5, urdf: builtin}]\n", "/tmp");
+  ASSERT_TRUE(half.ok());
+  EXPECT_NE(ValidateServerConfig(*half).message().find("go together"), std::string::npos);
+}
+
+// The one rule: a token, no TLS and an address other than loopback is refused unless allowed.
+TEST(ServerConfig, AClearTextTokenOffLoopbackNeedsExplicitConsent) {
+  const auto config = [](const std::string& server) {
+    auto c = ParseServerConfig("server: {" + server + "}\nrobots: [{id: kr5, urdf: builtin}]\n", "/tmp");
+    EXPECT_TRUE(c.ok()) << c.status().ToString();
+    return *c;
+  };
+  const Status refused = ValidateServerConfig(config("auth_token: t, address: 0.0.0.0"));
+  EXPECT_FALSE(refused.ok());
+  EXPECT_NE(refused.message().find("clear text"), std::string::npos) << refused.message();
+  EXPECT_NE(refused.message().find("allow_plaintext_token"), std::string::npos) << refused.message();
+  EXPECT_FALSE(ValidateServerConfig(config("auth_token: t, address: 192.168.1.20")).ok());
+  EXPECT_TRUE(ValidateServerConfig(config("auth_token: t, address: 0.0.0.0, allow_plaintext_token: true")).ok());
+  EXPECT_FALSE(ClearTextTokenRisk(config("auth_token: t, address: 0.0.0.0, allow_plaintext_token: true")).empty());
+  EXPECT_TRUE(ValidateServerConfig(config("auth_token: t, address: 127.0.0.1")).ok());
+  EXPECT_TRUE(ValidateServerConfig(config("auth_token: t, address: '::1'")).ok());
+  EXPECT_TRUE(ValidateServerConfig(config("auth_token: '', address: 0.0.0.0")).ok());  // no token, nothing to leak
+  EXPECT_TRUE(ClearTextTokenRisk(config("auth_token: '', address: 0.0.0.0")).empty());
+}
+
 TEST(ServerConfig, RegistrationYamlReadsBackTheSameSettings) {
   auto config = ParseServerConfig(
       "server: {record_dir: /var/lib/arref/recordings}\n"

@@ -34,6 +34,7 @@
 #include "arref/sim/room_simulator.h"
 #include "frame_decoder.h"
 #include "headset_client.h"
+#include "server_process.h"
 #include "track_client.h"
 #include "test_support.h"
 
@@ -45,7 +46,6 @@ namespace {
 namespace fs = std::filesystem;
 using Clock = std::chrono::steady_clock;
 
-const std::string kServerPath = ARREF_BINARY_DIR "/server/arref-server";
 const std::string kMockPath = ARREF_BINARY_DIR "/clients/mock_headset/arref-mock-headset";
 constexpr double kReplyTimeout = 120.0;  // only to avoid hanging; never a speed assertion
 
@@ -56,123 +56,8 @@ constexpr double kReplyTimeout = 120.0;  // only to avoid hanging; never a speed
 constexpr double kAddSuccessM = 0.030;
 constexpr double kMinSuccessRate = 0.8;
 
-struct ServerSettings {
-  int workers = 2;
-  int queue_size = 32;
-  std::size_t max_sessions = 64;
-  std::size_t max_send_queue_bytes = 8u << 20;
-  double shutdown_grace_s = 60;
-  std::size_t max_map_triangles = 1'000'000;
-  std::size_t max_connections_per_peer = 256;  // every test client comes from 127.0.0.1
-  std::string server_yaml, limits_yaml;  // more keys of those sections, each line "  key: value\n"
-};
-
-std::string ConfigYaml(const ServerSettings& s) {
-  std::ostringstream y;
-  y << "server:\n  address: 127.0.0.1\n  port: 0\n  workers: " << s.workers << "\n  queue_size: " << s.queue_size
-    << "\n  shutdown_grace_s: " << s.shutdown_grace_s << "\n  idle_timeout_s: 300\n" << s.server_yaml
-    << "limits:\n  max_sessions: " << s.max_sessions << "\n  max_send_queue_bytes: " << s.max_send_queue_bytes
-    << "\n  max_connections_per_peer: " << s.max_connections_per_peer << "\n  max_map_triangles: " << s.max_map_triangles << "\n" << s.limits_yaml << "robots:\n  - id: kr5\n    urdf: builtin\n";
-  return y.str();
-}
-
-// The real arref-server process, its port read from its stdout.
-class ServerProcess {
- public:
-  explicit ServerProcess(const ServerSettings& settings = {}) {
-    static int counter = 0;
-    const std::string tag = std::to_string(getpid()) + "_" + std::to_string(counter++);
-    config_path_ = (fs::temp_directory_path() / ("arref_server_test_" + tag + ".yaml")).string();
-    log_path_ = (fs::temp_directory_path() / ("arref_server_test_" + tag + ".log")).string();
-    std::ofstream(config_path_) << ConfigYaml(settings);
-    Spawn();
-  }
-  ~ServerProcess() {
-    if (pid_ > 0) {
-      kill(pid_, SIGKILL);
-      waitpid(pid_, nullptr, 0);
-    }
-    if (stdout_fd_ >= 0) close(stdout_fd_);
-    fs::remove(config_path_);
-    fs::remove(log_path_);
-  }
-
-  std::uint16_t port() const { return port_; }
-  pid_t pid() const { return pid_; }
-  bool alive() const { return pid_ > 0 && kill(pid_, 0) == 0; }
-  std::string Log() const {
-    std::ifstream in(log_path_);
-    std::stringstream s;
-    s << in.rdbuf();
-    return s.str();
-  }
-  long RssKb() const {
-    std::ifstream in("/proc/" + std::to_string(pid_) + "/status");
-    for (std::string line; std::getline(in, line);)
-      if (line.rfind("VmRSS:", 0) == 0) return std::stol(line.substr(6));
-    return -1;
-  }
-  // Sends the signal and waits (bounded) for the exit status; -1 if it did not exit.
-  int SignalAndWait(int signal, double timeout_s) {
-    kill(pid_, signal);
-    const auto deadline = Clock::now() + std::chrono::duration<double>(timeout_s);
-    while (Clock::now() < deadline) {
-      int status = 0;
-      if (waitpid(pid_, &status, WNOHANG) == pid_) {
-        pid_ = -1;
-        return WIFEXITED(status) ? WEXITSTATUS(status) : 128 + WTERMSIG(status);
-      }
-      std::this_thread::sleep_for(std::chrono::milliseconds(20));
-    }
-    return -1;
-  }
-
- private:
-  void Spawn() {
-    int out[2];
-    ASSERT_EQ(pipe(out), 0);
-    posix_spawn_file_actions_t actions;
-    posix_spawn_file_actions_init(&actions);
-    posix_spawn_file_actions_adddup2(&actions, out[1], STDOUT_FILENO);
-    posix_spawn_file_actions_addclose(&actions, out[0]);
-    posix_spawn_file_actions_addopen(&actions, STDERR_FILENO, log_path_.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
-    std::vector<std::string> args{kServerPath, "--config", config_path_, "--port", "0", "--address", "127.0.0.1"};
-    std::vector<char*> argv;
-    for (auto& a : args) argv.push_back(a.data());
-    argv.push_back(nullptr);
-    ASSERT_EQ(posix_spawn(&pid_, kServerPath.c_str(), &actions, nullptr, argv.data(), environ), 0) << kServerPath;
-    posix_spawn_file_actions_destroy(&actions);
-    close(out[1]);
-    stdout_fd_ = out[0];
-    ReadPort();
-  }
-
-  void ReadPort() {
-    const std::regex line_re(R"(listening on 127\.0\.0\.1:(\d+))");
-    std::string text;
-    const auto deadline = Clock::now() + std::chrono::seconds(60);
-    while (Clock::now() < deadline) {
-      pollfd p{stdout_fd_, POLLIN, 0};
-      if (poll(&p, 1, 200) <= 0) continue;
-      char buf[256];
-      const ssize_t n = read(stdout_fd_, buf, sizeof buf);
-      if (n <= 0) break;
-      text.append(buf, static_cast<std::size_t>(n));
-      std::smatch m;
-      if (std::regex_search(text, m, line_re)) {
-        port_ = static_cast<std::uint16_t>(std::stoi(m[1]));
-        return;
-      }
-    }
-    FAIL() << "arref-server did not print its port; stdout: " << text << "\nlog:\n" << Log();
-  }
-
-  pid_t pid_ = -1;
-  int stdout_fd_ = -1;
-  std::uint16_t port_ = 0;
-  std::string config_path_;
-  std::string log_path_;
-};
+using arref::testing::ServerProcess;
+using arref::testing::ServerSettings;
 
 // Simulated cells shared by all tests (simulating is the slow part of a client).
 const HeadsetScene& Scene(std::uint64_t rng_seed) {

@@ -33,11 +33,22 @@ constexpr std::uint64_t kMaxReplyBytes = 1u << 30;
 
 Status Errno(const std::string& what) { return Status(StatusCode::kUnavailable, what + ": " + std::strerror(errno)); }
 
-void SetTimeouts(int fd, double timeout_s) {
+timeval Timeval(double s) {
   timeval tv{};
-  tv.tv_sec = static_cast<time_t>(timeout_s);
-  tv.tv_usec = static_cast<suseconds_t>((timeout_s - static_cast<double>(tv.tv_sec)) * 1e6);
+  tv.tv_sec = static_cast<time_t>(s);
+  tv.tv_usec = static_cast<suseconds_t>((s - static_cast<double>(tv.tv_sec)) * 1e6);
+  return tv;
+}
+
+void SetTimeouts(int fd, double timeout_s) {
+  const timeval tv = Timeval(timeout_s);
   setsockopt(fd, SOL_SOCKET, SO_SNDTIMEO, &tv, sizeof tv);  // also bounds connect()
+}
+
+// Bounds a blocking read: a TLS record may be only partly here when poll() says readable.
+void SetReceiveTimeout(int fd, double timeout_s) {
+  const timeval tv = Timeval(std::max(timeout_s, 0.001));
+  setsockopt(fd, SOL_SOCKET, SO_RCVTIMEO, &tv, sizeof tv);
 }
 
 }  // namespace
@@ -45,7 +56,7 @@ void SetTimeouts(int fd, double timeout_s) {
 // ---------------------------------------------------------------- Connection
 
 Result<Connection> Connection::Connect(const std::string& host, std::uint16_t port, double timeout_s,
-                                       int rcvbuf_bytes) {
+                                       int rcvbuf_bytes, const TlsClientOptions& tls) {
   addrinfo hints{};
   hints.ai_family = AF_UNSPEC;
   hints.ai_socktype = SOCK_STREAM;
@@ -62,7 +73,11 @@ Result<Connection> Connection::Connect(const std::string& host, std::uint16_t po
       const int one = 1;
       setsockopt(fd, IPPROTO_TCP, TCP_NODELAY, &one, sizeof one);
       freeaddrinfo(found);
-      return Connection(fd);
+      Connection connection(fd);
+      if (!tls.enabled) return connection;
+      SetReceiveTimeout(fd, timeout_s);  // bounds the handshake
+      ARREF_ASSIGN_OR_RETURN(connection.tls_, ClientTls::Handshake(fd, host, tls));
+      return connection;
     }
     last = Errno(fmt::format("connecting to {}:{}", host, port));
     ::close(fd);
@@ -71,13 +86,17 @@ Result<Connection> Connection::Connect(const std::string& host, std::uint16_t po
   return last;
 }
 
-Connection::Connection(Connection&& other) noexcept : fd_(other.fd_), rx_(std::move(other.rx_)) { other.fd_ = -1; }
+Connection::Connection(Connection&& other) noexcept
+    : fd_(other.fd_), rx_(std::move(other.rx_)), tls_(std::move(other.tls_)) {
+  other.fd_ = -1;
+}
 
 Connection& Connection::operator=(Connection&& other) noexcept {
   if (this != &other) {
     Close();
     fd_ = other.fd_;
     rx_ = std::move(other.rx_);
+    tls_ = std::move(other.tls_);
     other.fd_ = -1;
   }
   return *this;
@@ -86,18 +105,22 @@ Connection& Connection::operator=(Connection&& other) noexcept {
 Connection::~Connection() { Close(); }
 
 void Connection::Close() {
+  tls_.reset();
   if (fd_ >= 0) ::close(fd_);
   fd_ = -1;
 }
 
 void Connection::ShutdownWrite() {
-  if (fd_ >= 0) ::shutdown(fd_, SHUT_WR);
+  if (fd_ < 0) return;
+  if (tls_) tls_->ShutdownWrite();
+  ::shutdown(fd_, SHUT_WR);
 }
 
 Status Connection::Send(const pb::ClientMessage& message) { return SendRaw(wire::EncodeFrame(message)); }
 
 Status Connection::SendRaw(const std::string& bytes) {
   if (fd_ < 0) return Status(StatusCode::kUnavailable, "not connected");
+  if (tls_) return tls_->Write(bytes.data(), bytes.size());
   std::size_t sent = 0;
   while (sent < bytes.size()) {
     const ssize_t n = ::send(fd_, bytes.data() + sent, bytes.size() - sent, MSG_NOSIGNAL);
@@ -122,18 +145,35 @@ Result<pb::ServerMessage> Connection::Receive(double timeout_s) {
       return message;
     }
     const auto left = std::chrono::duration_cast<std::chrono::milliseconds>(deadline - Clock::now()).count();
-    pollfd p{fd_, POLLIN, 0};
-    const int ready = ::poll(&p, 1, static_cast<int>(std::max<long long>(left, 0)));
-    if (ready < 0 && errno == EINTR) continue;
-    if (ready == 0) return Status::ResourceExhausted(fmt::format("no reply within {} s", timeout_s));
-    std::array<char, 65536> buf;
-    const ssize_t n = ::recv(fd_, buf.data(), buf.size(), 0);
-    if (n < 0 && errno == EINTR) continue;
-    if (n == 0) return Status(StatusCode::kUnavailable, "server closed the connection");
-    if (n < 0) return Errno("receiving");
-    rx_.append(buf.data(), static_cast<std::size_t>(n));
+    if (!tls_ || !tls_->Pending()) {
+      pollfd p{fd_, POLLIN, 0};
+      const int ready = ::poll(&p, 1, static_cast<int>(std::max<long long>(left, 0)));
+      if (ready < 0 && errno == EINTR) continue;
+      if (ready == 0) return Status::ResourceExhausted(fmt::format("no reply within {} s", timeout_s));
+    }
+    if (Status s = ReadSome(static_cast<double>(std::max<long long>(left, 1)) / 1000.0); !s.ok()) {
+      if (s.code() != StatusCode::kResourceExhausted) return s;
+      return Status::ResourceExhausted(fmt::format("no reply within {} s", timeout_s));
+    }
   }
   return Status(StatusCode::kUnavailable, "not connected");
+}
+
+Status Connection::ReadSome(double timeout_s) {
+  std::array<char, 65536> buf;
+  if (tls_) {
+    SetReceiveTimeout(fd_, timeout_s);
+    ARREF_ASSIGN_OR_RETURN(const std::size_t n, tls_->Read(buf.data(), buf.size()));
+    if (n == 0) return Status(StatusCode::kUnavailable, "server closed the connection");
+    rx_.append(buf.data(), n);
+    return Status::Ok();
+  }
+  const ssize_t n = ::recv(fd_, buf.data(), buf.size(), 0);
+  if (n < 0 && errno == EINTR) return Status::Ok();
+  if (n == 0) return Status(StatusCode::kUnavailable, "server closed the connection");
+  if (n < 0) return Errno("receiving");
+  rx_.append(buf.data(), static_cast<std::size_t>(n));
+  return Status::Ok();
 }
 
 // ---------------------------------------------------------------- scenes
@@ -241,7 +281,7 @@ class Runner {
 
   bool Connect() {
     const int rcvbuf = o_.misbehaviour == Misbehaviour::kNeverReadReplies ? 4096 : 0;
-    auto conn = Connection::Connect(o_.host, o_.port, std::min(o_.timeout_s, 30.0), rcvbuf);
+    auto conn = Connection::Connect(o_.host, o_.port, std::min(o_.timeout_s, 30.0), rcvbuf, o_.tls);
     if (!conn.ok()) return Fail(conn.status());
     conn_ = std::move(*conn);
     return true;
@@ -470,7 +510,7 @@ class RecordingSender {
       : rec_(recording), o_(options), pace_(pace), out_(out) {}
 
   void Run() {
-    auto conn = Connection::Connect(o_.host, o_.port, std::min(o_.timeout_s, 30.0));
+    auto conn = Connection::Connect(o_.host, o_.port, std::min(o_.timeout_s, 30.0), 0, o_.tls);
     if (!conn.ok()) {
       Fail(conn.status());
       return;

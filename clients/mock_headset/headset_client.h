@@ -6,6 +6,7 @@
 
 #include <cstdint>
 #include <functional>
+#include <memory>
 #include <optional>
 #include <string>
 #include <vector>
@@ -14,6 +15,7 @@
 #include "arref/robot/robot_model.h"
 #include "arref/scene/spatial_mesh.h"
 #include "arref/base/status.h"
+#include "client_tls.h"
 #include "recording.h"
 #include "wire.h"
 
@@ -21,12 +23,12 @@ namespace arref::headset {
 
 namespace pb = wire::pb;
 
-// One blocking TCP connection exchanging arref.v1 frames.
+// One blocking TCP connection exchanging arref.v1 frames, over TLS when tls.enabled.
 class Connection {
  public:
   // rcvbuf_bytes > 0 shrinks the socket's receive buffer (to make a non-reading client stall sooner).
   static Result<Connection> Connect(const std::string& host, std::uint16_t port, double timeout_s,
-                                    int rcvbuf_bytes = 0);
+                                    int rcvbuf_bytes = 0, const TlsClientOptions& tls = {});
   Connection() = default;  // not connected
   Connection(Connection&& other) noexcept;
   Connection& operator=(Connection&& other) noexcept;
@@ -44,8 +46,10 @@ class Connection {
 
  private:
   explicit Connection(int fd) : fd_(fd) {}
+  Status ReadSome(double timeout_s);  // appends to rx_
   int fd_ = -1;
   std::string rx_;
+  std::unique_ptr<ClientTls> tls_;
 };
 
 // What the headset has mapped (internal frame), and the truth when it is known.
@@ -72,6 +76,7 @@ struct HeadsetOptions {
   std::string robot_id = "kr5";
   std::string client_name = "arref-mock-headset";
   std::string auth_token;
+  TlsClientOptions tls;
   std::uint32_t protocol_version = wire::kProtocolVersion;
   int seed_index = 0;
   int batches = 3;                 // the map arrives in this many batches ...

@@ -66,6 +66,15 @@ void AddFlags(CLI::App& app, Args& a) {
   app.add_option("--timeout", o.timeout_s, "Give up waiting for a reply after this many seconds");
   app.add_option("--name", o.client_name, "Client name sent in Hello");
   app.add_option("--auth-token", o.auth_token, "Token if the server requires one");
+  app.add_flag("--tls", o.tls.enabled, "Connect over TLS, verifying the server against the system's trusted CAs");
+  app.add_option("--tls-ca", o.tls.ca_file,
+                 "Connect over TLS, verifying the server's certificate against this PEM CA (and its name against --host)")
+      ->check(CLI::ExistingFile);
+  app.add_option("--tls-server-name", o.tls.server_name,
+                 "The name the server's certificate must carry, when --host is another (e.g. an IP address)");
+  app.add_option("--tls-cert", o.tls.certificate, "Our own certificate (PEM), for a server with tls.client_ca")
+      ->check(CLI::ExistingFile);
+  app.add_option("--tls-key", o.tls.private_key, "The private key of --tls-cert (PEM)")->check(CLI::ExistingFile);
   app.add_option("--protocol-version", o.protocol_version, "Claim this protocol version in Hello");
   app.add_flag("--disconnect-mid-upload", a.disconnect, "Misbehave: drop the connection halfway through the map");
   app.add_flag("--corrupt-frame", a.corrupt, "Misbehave: send a frame that is not a protobuf message");
@@ -285,6 +294,7 @@ std::pair<double, double> MedianP95(std::vector<double>& v) {
 int RunTrack(Args& args) {
   TrackHeadsetOptions& o = args.track_options;
   o.host = args.options.host, o.port = args.options.port, o.robot_id = args.options.robot_id, o.rng_seed = args.rng_seed;
+  o.tls = args.options.tls;
   const TrackHeadsetRun run = RunTrackingHeadset(o);
   if (!run.status.ok()) {
     std::cout << "FAILED: " << run.status.ToString() << std::endl;
@@ -323,6 +333,9 @@ int main(int argc, char** argv) {
   spdlog::set_level(spdlog::level::from_str(args.log_level));
   args.options.port = static_cast<std::uint16_t>(args.port);
   args.options.misbehaviour = ChosenMisbehaviour(args);
+  const TlsClientOptions& tls = args.options.tls;
+  if (!tls.ca_file.empty() || !tls.server_name.empty() || !tls.certificate.empty())
+    args.options.tls.enabled = true;  // any TLS option means TLS
   if (args.track) return RunTrack(args);
   if (args.clients == 1 && args.options.repeat == 1 && !args.json)
     args.options.on_progress = [](const wire::pb::Progress& p) {

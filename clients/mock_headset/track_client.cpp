@@ -36,7 +36,7 @@ struct Peer {
 };
 
 Status Hello(Peer& p, const TrackHeadsetOptions& o, const std::string& name) {
-  ARREF_ASSIGN_OR_RETURN(p.conn, Connection::Connect(o.host, o.port, o.timeout_s));
+  ARREF_ASSIGN_OR_RETURN(p.conn, Connection::Connect(o.host, o.port, o.timeout_s, 0, o.tls));
   pb::ClientMessage m;
   m.mutable_hello()->set_protocol_version(wire::kProtocolVersion);
   m.mutable_hello()->set_client_name(name);

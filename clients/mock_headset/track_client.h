@@ -28,6 +28,7 @@ struct TrackHeadsetOptions {
   double sender_clock_offset_s = -0.73;   // the joint sender's
   bool subscriber = true;           // a third session subscribes to the robot's updates
   double timeout_s = 60.0;
+  TlsClientOptions tls;
 };
 
 struct TrackUpdateRecord {

@@ -54,7 +54,8 @@ struct Server {
                                    memory,
                                    [](std::uint64_t) { return arref::Status::Ok(); },
                                    [this](std::uint64_t) { ++closed; },
-                                   "fuzz"};
+                                   "fuzz",
+                                   nullptr};
 
   static Server& Get() {
     static Server* server = [] {

@@ -7,13 +7,14 @@
         print(result.status, result.pose, result.matrix)
 """
 
-from .client import Client, RegistrationResult, RobotInfo, frame_convention, DEFAULT_PORT, PROTOCOL_VERSION
+from .client import Client, RegistrationResult, RobotInfo, frame_convention, tls_context, DEFAULT_PORT, PROTOCOL_VERSION
 from .errors import ArrefError, ConnectionClosed, Timeout, ServerError, RegistrationFailed, Cancelled
 from .mesh import Mesh, load_mesh, split_into_surfaces
 from .tracking import ClockOffsetEstimator, TrackingUpdate, TrackOutcome, TrackTruth
 from ._proto import pb
 
-__all__ = ["Client", "RegistrationResult", "RobotInfo", "frame_convention", "DEFAULT_PORT", "PROTOCOL_VERSION",
+__all__ = ["Client", "RegistrationResult", "RobotInfo", "frame_convention", "tls_context", "DEFAULT_PORT",
+           "PROTOCOL_VERSION",
            "ArrefError", "ConnectionClosed", "Timeout", "ServerError", "RegistrationFailed", "Cancelled",
            "Mesh", "load_mesh", "split_into_surfaces", "pb", "ClockOffsetEstimator", "TrackingUpdate", "TrackOutcome",
            "TrackTruth"]

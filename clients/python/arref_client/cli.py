@@ -49,8 +49,13 @@ def _result_json(r):
             "server_ms": r.server_ms}
 
 
+def _tls(args):
+    return {"tls": args.tls, "tls_ca": args.tls_ca, "server_hostname": args.tls_server_name}
+
+
 def _connect(args):
-    return Client(args.host, args.port, client_name="arref-py", auth_token=args.auth_token, timeout=args.timeout)
+    return Client(args.host, args.port, client_name="arref-py", auth_token=args.auth_token, timeout=args.timeout,
+                  **_tls(args))
 
 
 def cmd_info(args):
@@ -99,7 +104,7 @@ def cmd_send_recording(args):
     from .recording import send_recording
 
     out = send_recording(args.file, args.host, args.port, pace="fast" if args.fast else "original",
-                         auth_token=args.auth_token, timeout=args.timeout)
+                         auth_token=args.auth_token, timeout=args.timeout, **_tls(args))
     for e in out.errors:
         print(f"server error {e}", file=sys.stderr)
     for r in out.results:
@@ -147,6 +152,9 @@ def parser():
     p.add_argument("--port", type=int, default=DEFAULT_PORT)
     p.add_argument("--auth-token", default="", help="the server's auth_token, if it has one")
     p.add_argument("--timeout", type=float, default=300.0, help="give up waiting for a reply after this many s")
+    p.add_argument("--tls", action="store_true", help="connect over TLS, verifying the server against the system's CAs")
+    p.add_argument("--tls-ca", help="connect over TLS, verifying the server's certificate against this PEM CA file")
+    p.add_argument("--tls-server-name", help="the name the server's certificate must carry (default: --host)")
     sub = p.add_subparsers(dest="command", required=True)
 
     sub.add_parser("info", help="the server's version, robots and methods").set_defaults(run=cmd_info)

@@ -8,6 +8,7 @@ import collections
 import itertools
 import select
 import socket
+import ssl
 import time
 from dataclasses import dataclass, field
 
@@ -118,17 +119,50 @@ def _pushed(message):
     return TrackingUpdate.from_proto(message.tracking_update)
 
 
+def tls_context(tls_ca=None, certificate=None, private_key=None):
+    """An ssl.SSLContext that verifies the server's certificate and host name: against the CA file
+    tls_ca (PEM), or the system's trusted CAs when it is None. certificate / private_key: this
+    client's own, for a server that requires one (its tls.client_ca)."""
+    context = ssl.create_default_context(cafile=tls_ca)
+    context.minimum_version = ssl.TLSVersion.TLSv1_2
+    if certificate:
+        context.load_cert_chain(certificate, private_key)
+    return context
+
+
+def _wrap_tls(sock, context, server_hostname):
+    try:
+        return context.wrap_socket(sock, server_hostname=server_hostname)
+    except ssl.SSLCertVerificationError as e:
+        sock.close()
+        raise errors.TlsVerificationFailed(
+            f"the server's certificate did not verify for {server_hostname}: {e.verify_message}") from e
+    except (ssl.SSLError, OSError) as e:  # a plaintext server, or one that refused our certificate
+        sock.close()
+        raise errors.TlsError(f"TLS handshake with {server_hostname} failed: {e}") from e
+
+
 class Client:
-    """One session with arref-server. Use as a context manager, or call close()."""
+    """One session with arref-server. Use as a context manager, or call close().
+
+    TLS: tls_ca (a PEM CA file the server's certificate must be signed by), tls=True (the
+    system's trusted CAs), or ssl_context (your own ssl.SSLContext). The certificate must name
+    `host`, or server_hostname when given. A failed verification raises
+    errors.TlsVerificationFailed."""
 
     def __init__(self, host="127.0.0.1", port=DEFAULT_PORT, *, client_name="arref-python", auth_token="",
-                 timeout=300.0):
+                 timeout=300.0, tls=False, tls_ca=None, ssl_context=None, server_hostname=None):
         self.timeout = timeout
         try:
-            self._sock = socket.create_connection((host, port), timeout=min(timeout, 30.0))
+            sock = socket.create_connection((host, port), timeout=min(timeout, 30.0))
         except OSError as e:
             raise errors.ConnectionClosed(f"cannot connect to {host}:{port}: {e}") from e
-        self._sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        sock.setsockopt(socket.IPPROTO_TCP, socket.TCP_NODELAY, 1)
+        if ssl_context is None and (tls or tls_ca):
+            ssl_context = tls_context(tls_ca)
+        if ssl_context is not None:
+            sock = _wrap_tls(sock, ssl_context, server_hostname or host)
+        self._sock = sock
         self._rx = b""
         self._backlog = collections.deque()  # messages read while waiting for another
         self._request_ids = itertools.count(1)
@@ -487,11 +521,15 @@ class Client:
         backlog, without blocking longer."""
         deadline = time.monotonic() + timeout
         while True:
-            readable, _, _ = select.select([self._sock], [], [], max(0.0, deadline - time.monotonic()))
+            # Decrypted bytes already buffered by TLS are not announced by select().
+            buffered = isinstance(self._sock, ssl.SSLSocket) and self._sock.pending() > 0
+            readable = buffered or select.select([self._sock], [], [], max(0.0, deadline - time.monotonic()))[0]
             if not readable:
                 break
             try:
                 chunk = self._sock.recv(1 << 20)
+            except socket.timeout:  # TLS: only part of a record was here
+                break
             except OSError as e:
                 raise errors.ConnectionClosed(f"receiving failed: {e}") from e
             if not chunk:

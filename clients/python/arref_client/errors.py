@@ -11,6 +11,15 @@ class ConnectionClosed(ArrefError):
     """The server closed the connection (or it could not be opened)."""
 
 
+class TlsError(ConnectionClosed):
+    """The TLS handshake failed (e.g. the server does not speak TLS on that port)."""
+
+
+class TlsVerificationFailed(TlsError):
+    """The server's certificate did not verify: not signed by the trusted CA, not naming the host,
+    or expired."""
+
+
 class Timeout(ArrefError):
     """No awaited reply within the timeout."""
 

@@ -58,17 +58,18 @@ class SendOutcome:
 
 
 def send_recording(recording, host="127.0.0.1", port=7311, pace="original", auth_token="",
-                   client_name="arref-py (recording)", timeout=300.0):
+                   client_name="arref-py (recording)", timeout=300.0, **tls):
     """Sends a recording (a Recording or a path) to a live server and waits for every result.
 
     pace: "original" keeps the recorded times between messages; "fast" sends them back to back.
-    The recorded Hello is replaced by this client's own (a recording holds no token)."""
+    The recorded Hello is replaced by this client's own (a recording holds no token).
+    tls: Client's TLS arguments (tls, tls_ca, ssl_context, server_hostname)."""
     if pace not in ("original", "fast"):
         raise ValueError(f"pace '{pace}': expected original or fast")
     if not isinstance(recording, Recording):
         recording = read_recording(recording)
     out = SendOutcome(0, [], [])
-    with Client(host, port, client_name=client_name, auth_token=auth_token, timeout=timeout) as c:
+    with Client(host, port, client_name=client_name, auth_token=auth_token, timeout=timeout, **tls) as c:
         out.session_id = c.session_id
         messages = [m for m in recording.messages if m.message.WhichOneof("kind") != "hello"]
         t0 = messages[0].t_s if messages else 0.0

@@ -21,7 +21,7 @@ then on keep it dynamic), and a warning says that listeners already running keep
 cache until they restart.
 
 Config (YAML, all optional; flags override):
-    server: {host: 127.0.0.1, port: 7311, auth_token: ""}
+    server: {host: 127.0.0.1, port: 7311, auth_token: "", tls_ca: ""}   # tls_ca: PEM CA of a TLS server
     world_frame: world             # parent of every robot unless a robot names its own
     static: true
     publish_low_confidence: false
@@ -64,6 +64,7 @@ class BridgeConfig:
     host: str = "127.0.0.1"
     port: int = DEFAULT_PORT
     auth_token: str = ""
+    tls_ca: str = ""  # non-empty: TLS, the server verified against this PEM CA
     world_frame: str = "world"
     static: bool = True
     publish_low_confidence: bool = False
@@ -88,6 +89,7 @@ def load_config(path):
     c.host = str(server.get("host", c.host))
     c.port = int(server.get("port", c.port))
     c.auth_token = str(server.get("auth_token", c.auth_token))
+    c.tls_ca = str(server.get("tls_ca", c.tls_ca) or "")
     c.world_frame = str(data.get("world_frame", c.world_frame))
     c.static = bool(data.get("static", c.static))
     c.publish_low_confidence = bool(data.get("publish_low_confidence", c.publish_low_confidence))
@@ -180,7 +182,7 @@ class Bridge:
 
     def _connect(self):
         c = Client(self.config.host, self.config.port, client_name="arref-ros-bridge",
-                   auth_token=self.config.auth_token, timeout=30.0)
+                   auth_token=self.config.auth_token, timeout=30.0, tls_ca=self.config.tls_ca or None)
         served = {r.id: r for r in c.robots}
         wanted = self.config.robots or [RobotFrames(rid) for rid in served]
         self.frames = {}
@@ -322,6 +324,7 @@ def parser():
     p.add_argument("--host")
     p.add_argument("--port", type=int)
     p.add_argument("--auth-token")
+    p.add_argument("--tls-ca", help="connect over TLS, verifying the server against this PEM CA")
     p.add_argument("--world-frame", help="parent frame of every robot that names none")
     p.add_argument("--robot", action="append", default=[], metavar="ID[:CHILD[:PARENT]]",
                    help="publish this robot (repeatable), optionally naming its base frame and world frame")
@@ -344,6 +347,8 @@ def config_from_args(args):
         c.port = args.port
     if args.auth_token is not None:
         c.auth_token = args.auth_token
+    if args.tls_ca:
+        c.tls_ca = args.tls_ca
     if args.world_frame:
         c.world_frame = args.world_frame
     if args.dynamic:

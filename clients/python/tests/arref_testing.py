@@ -18,11 +18,14 @@ ARREF = os.path.join(BINARY_DIR, "clients", "cli", "arref")
 MOCK_HEADSET = os.path.join(BINARY_DIR, "clients", "mock_headset", "arref-mock-headset")
 
 
-def server_yaml(auth_token="", record_dir="", port=0):
+def server_yaml(auth_token="", record_dir="", port=0, tls=None):
     lines = ["server:", "  address: 127.0.0.1", f"  port: {port}", "  workers: 2", "  idle_timeout_s: 300",
              f"  auth_token: \"{auth_token}\""]
     if record_dir:
         lines.append(f"  record_dir: \"{record_dir}\"")
+    if tls:
+        lines.append("tls:")
+        lines += [f"  {key}: \"{value}\"" for key, value in tls.items()]
     lines += ["robots:", "  - id: kr5", "    urdf: builtin"]
     return "\n".join(lines) + "\n"
 
@@ -30,9 +33,9 @@ def server_yaml(auth_token="", record_dir="", port=0):
 class ServerProcess:
     """arref-server with a test config; its port is read from the 'listening on' line."""
 
-    def __init__(self, tmp_path, auth_token="", record_dir="", port=0, extra_args=()):
+    def __init__(self, tmp_path, auth_token="", record_dir="", port=0, extra_args=(), tls=None):
         self.config = tmp_path / f"server_{time.monotonic_ns()}.yaml"
-        self.config.write_text(server_yaml(auth_token, record_dir, port))
+        self.config.write_text(server_yaml(auth_token, record_dir, port, tls))
         self.log_path = tmp_path / f"server_{time.monotonic_ns()}.log"
         self._log = open(self.log_path, "w")
         self.proc = subprocess.Popen([SERVER, "--config", str(self.config), *extra_args], stdout=subprocess.PIPE,
@@ -84,6 +87,32 @@ class Cell:
 
     def seed(self, index=0):
         return self.truth["seeds"][index]
+
+
+class Pki:
+    """A throwaway CA and a server certificate it signed for localhost and 127.0.0.1, made with
+    Debian's openssl command line (P-256 keys: quick)."""
+
+    def __init__(self, folder, name="test"):
+        def path(suffix):
+            return str(folder / f"{name}_{suffix}")
+
+        ec = ["-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes"]
+        self.ca, self.cert, self.key = path("ca.pem"), path("server.pem"), path("server.key")
+        with open(path("ext.cnf"), "w") as f:
+            f.write("subjectAltName=DNS:localhost,IP:127.0.0.1\nbasicConstraints=CA:FALSE\n"
+                    "extendedKeyUsage=serverAuth\n")
+        run = lambda *a: subprocess.run(["openssl", *a], check=True, capture_output=True)  # noqa: E731
+        run("req", "-x509", *ec, "-keyout", path("ca.key"), "-out", self.ca, "-days", "2", "-subj",
+            f"/CN=arref test CA {name}")
+        run("req", *ec, "-keyout", self.key, "-out", path("server.csr"), "-subj", "/CN=localhost")
+        run("x509", "-req", "-in", path("server.csr"), "-CA", self.ca, "-CAkey", path("ca.key"), "-CAcreateserial",
+            "-out", self.cert, "-days", "2", "-extfile", path("ext.cnf"))
+
+    @property
+    def server_tls(self):
+        """The server config's tls section."""
+        return {"certificate_chain": self.cert, "private_key": self.key}
 
 
 def python_cli(*args, **kwargs):

@@ -52,6 +52,9 @@ def test_shipped_config_and_flags(tmp_path):
                                 "--dynamic"])
     c = config_from_args(args)
     assert c.port == 9000 and not c.static
+    assert c.tls_ca == ""  # plain TCP unless asked
+    assert config_from_args(parser().parse_args(["--config", shipped, "--tls-ca", "/etc/arref/ca.pem"])).tls_ca == \
+        "/etc/arref/ca.pem"
     assert [(r.id, r.child_frame, r.parent_frame) for r in c.robots] == [("ur5", "ur5_base", "map"), ("kr5", "", "")]
 
     bad = tmp_path / "bad.yaml"

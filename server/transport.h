@@ -1,0 +1,76 @@
+// The byte stream under a session: plain TCP, or TLS over it (config section `tls`), so that the
+// session's reading, writing and closing stay one path. Only transport.cpp includes Asio's SSL
+// headers; the TLS side is reached through the few calls below, their handlers type-erased.
+#pragma once
+
+// Boost 1.74 Asio uses std::exchange without including <utility> in C++20 mode.
+#include <utility>
+
+#include <boost/asio.hpp>
+
+#include <functional>
+#include <memory>
+#include <string>
+
+#include "arref/base/status.h"
+#include "server_config.h"
+
+namespace boost::asio::ssl {
+class context;
+}
+
+namespace arref::server {
+
+namespace net = boost::asio;
+using tcp = net::ip::tcp;
+
+// The server's certificate and key (and the CA clients must be signed by, if any), loaded and
+// checked once at startup so that a bad file stops the server with a message naming it.
+class TlsContext {
+ public:
+  static Result<std::unique_ptr<TlsContext>> Load(const TlsConfig& config);
+  ~TlsContext();
+  net::ssl::context& native() { return *context_; }
+  const std::string& description() const { return description_; }  // for the startup log
+
+ private:
+  TlsContext() = default;
+  std::unique_ptr<net::ssl::context> context_;
+  std::string description_;
+};
+
+class Transport {
+ public:
+  using IoHandler = std::function<void(const boost::system::error_code&, std::size_t)>;
+  using DoneHandler = std::function<void(const boost::system::error_code&)>;
+
+  // tls == nullptr: plain TCP. The TLS layer refers to socket_, so a Transport stays in place.
+  Transport(tcp::socket socket, TlsContext* tls);
+  ~Transport();
+  Transport(const Transport&) = delete;
+  Transport& operator=(const Transport&) = delete;
+
+  bool encrypted() const { return tls_ != nullptr; }
+  tcp::socket& socket() { return socket_; }
+  net::any_io_executor executor() { return socket_.get_executor(); }
+
+  // The server side of the TLS handshake; a plain transport has none (call only when encrypted).
+  void AsyncHandshake(DoneHandler done);
+  void AsyncReadSome(net::mutable_buffer buffer, IoHandler done);
+  void AsyncWrite(net::const_buffer buffer, IoHandler done);  // the whole buffer
+  // Ends a pending read (the client gets no more of our attention); writes may still finish.
+  void ShutdownReceive();
+  // Without TLS's close_notify: every message is length-prefixed, so a cut stream is told
+  // from a finished one by the framing, and closing never waits on the client.
+  void Close();
+
+  // The client finished: end of file, or (TLS) the connection closed without close_notify.
+  static bool IsEndOfStream(const boost::system::error_code& ec);
+
+ private:
+  struct Tls;
+  tcp::socket socket_;
+  std::unique_ptr<Tls> tls_;
+};
+
+}  // namespace arref::server

@@ -1,0 +1,310 @@
+// TLS end to end: the real arref-server process on loopback with a certificate from a throwaway
+// CA made here by Debian's openssl command line, and the mock headset's client library (and
+// executable) verifying it.
+#include <arpa/inet.h>
+#include <netinet/in.h>
+#include <poll.h>
+#include <sys/socket.h>
+#include <unistd.h>
+
+#include <gtest/gtest.h>
+
+#include <chrono>
+#include <fstream>
+#include <string>
+#include <thread>
+#include <tuple>
+#include <vector>
+
+#include "headset_client.h"
+#include "server_process.h"
+#include "test_support.h"
+
+namespace arref::headset {
+namespace {
+
+using arref::testing::RunCommand;
+using arref::testing::ScopedTempDir;
+using arref::testing::ServerProcess;
+using arref::testing::ServerSettings;
+using Clock = std::chrono::steady_clock;
+
+const std::string kMockPath = ARREF_BINARY_DIR "/clients/mock_headset/arref-mock-headset";
+constexpr double kReplyTimeout = 120.0;  // only to avoid hanging
+
+void Run(const std::string& command) {
+  const auto r = RunCommand(command);
+  ASSERT_EQ(r.exit_code, 0) << command << "\n" << r.err;
+}
+
+// A CA and a certificate it signed for localhost and 127.0.0.1 (P-256 keys: fast to make).
+struct Pki {
+  std::string ca, server_cert, server_key;
+  std::string client_cert, client_key;  // for a server with tls.client_ca
+};
+
+Pki MakePki(const std::string& dir, const std::string& name) {
+  const std::string d = dir + "/" + name;
+  const std::string ec = " -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes ";
+  Pki p{d + "_ca.pem", d + "_server.pem", d + "_server.key", d + "_client.pem", d + "_client.key"};
+  std::ofstream(d + "_ext.cnf") << "subjectAltName=DNS:localhost,IP:127.0.0.1\nbasicConstraints=CA:FALSE\n"
+                                   "extendedKeyUsage=serverAuth\n";
+  std::ofstream(d + "_client_ext.cnf") << "basicConstraints=CA:FALSE\nextendedKeyUsage=clientAuth\n";
+  Run("openssl req -x509" + ec + "-keyout " + d + "_ca.key -out " + p.ca + " -days 2 -subj '/CN=arref test CA " + name +
+      "'");
+  Run("openssl req" + ec + "-keyout " + p.server_key + " -out " + d + "_server.csr -subj /CN=localhost");
+  Run("openssl x509 -req -in " + d + "_server.csr -CA " + p.ca + " -CAkey " + d + "_ca.key -CAcreateserial -out " +
+      p.server_cert + " -days 2 -extfile " + d + "_ext.cnf");
+  Run("openssl req" + ec + "-keyout " + p.client_key + " -out " + d + "_client.csr -subj /CN=headset-1");
+  Run("openssl x509 -req -in " + d + "_client.csr -CA " + p.ca + " -CAkey " + d + "_ca.key -CAcreateserial -out " +
+      p.client_cert + " -days 2 -extfile " + d + "_client_ext.cnf");
+  return p;
+}
+
+std::string TlsYaml(const std::string& cert, const std::string& key) {
+  return "tls:\n  certificate_chain: " + cert + "\n  private_key: " + key + "\n";
+}
+
+class Tls : public ::testing::Test {
+ protected:
+  void SetUp() override {
+    pki_ = MakePki(dir_.path(), "good");
+    other_ = MakePki(dir_.path(), "other");
+  }
+
+  ServerSettings Settings() const {
+    ServerSettings s;
+    s.sections_yaml = TlsYaml(pki_.server_cert, pki_.server_key);
+    return s;
+  }
+
+  TlsClientOptions Trusting(const std::string& ca) const { return {.enabled = true, .ca_file = ca}; }
+
+  // Hello -> HelloReply over a fresh TLS connection (by default trusting our CA).
+  void ExpectHelloWorks(const ServerProcess& server) const { ExpectHelloWorks(server, Trusting(pki_.ca)); }
+  void ExpectHelloWorks(const ServerProcess& server, const TlsClientOptions& tls) const {
+    auto conn = Connection::Connect("127.0.0.1", server.port(), 10, 0, tls);
+    ASSERT_TRUE(conn.ok()) << conn.status().ToString() << "\n" << server.Log();
+    ASSERT_TRUE(conn->Send(Hello()).ok());
+    auto reply = conn->Receive(kReplyTimeout);
+    ASSERT_TRUE(reply.ok()) << reply.status().ToString();
+    EXPECT_TRUE(reply->has_hello_reply());
+  }
+  static pb::ClientMessage Hello() {
+    pb::ClientMessage m;
+    m.mutable_hello()->set_protocol_version(wire::kProtocolVersion);
+    m.mutable_hello()->set_client_name("tls-test");
+    return m;
+  }
+
+  ScopedTempDir dir_;
+  Pki pki_, other_;
+};
+
+TEST_F(Tls, MockHeadsetRegistersOverTls) {
+  ServerProcess server(Settings());
+  auto scene = SimulatedScene(1);
+  ASSERT_TRUE(scene.ok()) << scene.status().ToString();
+  HeadsetOptions o;
+  o.host = "127.0.0.1";
+  o.port = server.port();
+  o.timeout_s = kReplyTimeout;
+  o.batch_interval_s = 0.01;
+  o.tls = Trusting(pki_.ca);
+  const HeadsetRun run = RunHeadset(*scene, o);
+  ASSERT_TRUE(run.status.ok()) << run.status.ToString() << "\n" << server.Log();
+  ASSERT_EQ(run.registrations.size(), 1u);
+  const auto status = run.registrations[0].result.status();
+  EXPECT_TRUE(status == pb::RESULT_STATUS_OK || status == pb::RESULT_STATUS_LOW_CONFIDENCE) << pb::ResultStatus_Name(status);
+  EXPECT_NE(server.Log().find("(TLS)"), std::string::npos);
+}
+
+TEST_F(Tls, TheMockHeadsetVerifiesTheHostName) {
+  ServerProcess server(Settings());
+  const std::string base = kMockPath + " --port " + std::to_string(server.port()) + " --tls-ca " + pki_.ca +
+                           " --batches 1 --timeout 60 --rng-seed 1";
+  // "localhost" is in the certificate; the test cell's registration is not needed to see that.
+  const auto wrong_name = RunCommand(base + " --host 127.0.0.1 --tls-server-name arref.example");
+  EXPECT_NE(wrong_name.exit_code, 0);
+  EXPECT_NE(wrong_name.out.find("did not verify"), std::string::npos) << wrong_name.out << wrong_name.err;
+  EXPECT_NE(wrong_name.out.find("hostname mismatch"), std::string::npos) << wrong_name.out;
+  const auto wrong_ca = RunCommand(kMockPath + " --port " + std::to_string(server.port()) + " --tls-ca " + other_.ca);
+  EXPECT_NE(wrong_ca.exit_code, 0);
+  EXPECT_NE(wrong_ca.out.find("unable to get local issuer certificate"), std::string::npos) << wrong_ca.out;
+  EXPECT_TRUE(server.alive());
+  ExpectHelloWorks(server);
+}
+
+TEST_F(Tls, AClientTrustingAnotherCaFailsAndTheServerKeepsServing) {
+  ServerProcess server(Settings());
+  auto conn = Connection::Connect("127.0.0.1", server.port(), 10, 0, Trusting(other_.ca));
+  ASSERT_FALSE(conn.ok());
+  const std::string message = conn.status().message();
+  EXPECT_NE(message.find("the server's certificate did not verify"), std::string::npos) << message;
+  EXPECT_NE(message.find(other_.ca), std::string::npos) << message;  // names what it trusted
+  std::this_thread::sleep_for(std::chrono::milliseconds(200));
+  EXPECT_NE(server.Log().find("TLS handshake failed"), std::string::npos) << server.Log();
+  EXPECT_TRUE(server.alive());
+  ExpectHelloWorks(server);
+}
+
+TEST_F(Tls, APlaintextClientIsClosedAndTheServerKeepsServing) {
+  ServerProcess server(Settings());
+  auto plain = Connection::Connect("127.0.0.1", server.port(), 10);
+  ASSERT_TRUE(plain.ok());
+  pb::ClientMessage m;
+  m.mutable_hello()->set_protocol_version(wire::kProtocolVersion);
+  ASSERT_TRUE(plain->Send(m).ok());
+  const auto reply = plain->Receive(30);
+  ASSERT_FALSE(reply.ok());
+  EXPECT_EQ(reply.status().code(), StatusCode::kUnavailable) << reply.status().ToString();  // closed, not timed out
+  EXPECT_TRUE(server.alive());
+  ExpectHelloWorks(server);
+}
+
+// Opens a TCP connection that never starts (or never finishes) the TLS handshake.
+int StalledConnection(std::uint16_t port, bool partial_client_hello) {
+  const int fd = socket(AF_INET, SOCK_STREAM, 0);
+  sockaddr_in a{};
+  a.sin_family = AF_INET;
+  a.sin_port = htons(port);
+  a.sin_addr.s_addr = htonl(INADDR_LOOPBACK);
+  EXPECT_EQ(connect(fd, reinterpret_cast<sockaddr*>(&a), sizeof a), 0);
+  if (partial_client_hello) {
+    EXPECT_EQ(send(fd, "\x16\x03\x01\x02\x00", 5, MSG_NOSIGNAL), 5);  // a record header only
+  }
+  return fd;
+}
+
+// Seconds until the server closes fd (reads return 0 or an error), or -1 after timeout_s.
+double SecondsUntilClosed(int fd, double timeout_s) {
+  const auto start = Clock::now();
+  while (std::chrono::duration<double>(Clock::now() - start).count() < timeout_s) {
+    pollfd p{fd, POLLIN, 0};
+    if (poll(&p, 1, 100) <= 0) continue;
+    char buf[256];
+    if (recv(fd, buf, sizeof buf, 0) <= 0) return std::chrono::duration<double>(Clock::now() - start).count();
+  }
+  return -1;
+}
+
+TEST_F(Tls, AStalledHandshakeIsClosedByTheHelloDeadline) {
+  ServerSettings s = Settings();
+  s.server_yaml = "  hello_timeout_s: 1\n";
+  ServerProcess server(s);
+  const int silent = StalledConnection(server.port(), false);
+  const int partial = StalledConnection(server.port(), true);
+  const double silent_s = SecondsUntilClosed(silent, 20);
+  const double partial_s = SecondsUntilClosed(partial, 20);
+  EXPECT_GE(silent_s, 0.5);
+  EXPECT_LT(silent_s, 10) << "never closed";
+  EXPECT_GE(partial_s, 0);
+  EXPECT_LT(partial_s, 10) << "never closed";
+  close(silent);
+  close(partial);
+  EXPECT_NE(server.Log().find("no completed TLS handshake within 1 s of connecting (server.hello_timeout_s)"),
+            std::string::npos) << server.Log();
+  ExpectHelloWorks(server);
+}
+
+// A connection still in its handshake is a connection owing Hello: when they fill
+// limits.max_pending_connections the oldest goes, and a headset still gets in.
+TEST_F(Tls, StalledHandshakesCountAsPendingAndCannotLockHeadsetsOut) {
+  ServerSettings s = Settings();
+  s.limits_yaml = "  max_pending_connections: 2\n";
+  ServerProcess server(s);
+  std::vector<int> stalled;
+  for (int i = 0; i < 3; ++i) stalled.push_back(StalledConnection(server.port(), true));
+  const double first_s = SecondsUntilClosed(stalled[0], 3);  // evicted long before the 5 s deadline
+  EXPECT_GE(first_s, 0) << server.Log();
+  ExpectHelloWorks(server);
+  for (int fd : stalled) close(fd);
+}
+
+// tls.client_ca: only clients holding a certificate that CA signed get a session.
+TEST_F(Tls, WithAClientCaOnlyClientsWithItsCertificatesGetIn) {
+  ServerSettings s = Settings();
+  s.sections_yaml += "  client_ca: " + pki_.ca + "\n";
+  ServerProcess server(s);
+  TlsClientOptions with_certificate = Trusting(pki_.ca);
+  with_certificate.certificate = pki_.client_cert;
+  with_certificate.private_key = pki_.client_key;
+  ExpectHelloWorks(server, with_certificate);
+
+  const std::vector<std::tuple<std::string, std::string, std::string>> refused{
+      {"no certificate", "", ""}, {"a certificate another CA signed", other_.client_cert, other_.client_key}};
+  for (const auto& [what, certificate, key] : refused) {
+    TlsClientOptions o = Trusting(pki_.ca);
+    o.certificate = certificate;
+    o.private_key = key;
+    // TLS 1.3 finishes the client's side of the handshake before the server has checked its
+    // certificate: the refusal shows at the connect or at the first read.
+    auto conn = Connection::Connect("127.0.0.1", server.port(), 10, 0, o);
+    if (!conn.ok()) {
+      EXPECT_NE(conn.status().message().find("TLS handshake"), std::string::npos) << what << ": " << conn.status().ToString();
+      continue;
+    }
+    (void)conn->Send(Hello());
+    const auto reply = conn->Receive(30);
+    EXPECT_FALSE(reply.ok() && reply->has_hello_reply()) << what << " was let in";
+  }
+  EXPECT_NE(server.Log().find("TLS handshake failed"), std::string::npos) << server.Log();
+  EXPECT_TRUE(server.alive());
+}
+
+TEST_F(Tls, TlsConfigErrorsNameTheFileAndTheProblem) {
+  const auto check = [&](const std::string& tls_yaml) {
+    const std::string path = dir_.path() + "/bad.yaml";
+    std::ofstream(path) << "server:\n  address: 127.0.0.1\n" << tls_yaml << "robots:\n  - id: kr5\n    urdf: builtin\n";
+    return RunCommand(arref::testing::kServerPath + " --check-config --config " + path);
+  };
+  const std::string missing = dir_.path() + "/missing.key";
+  const auto no_key = check(TlsYaml(pki_.server_cert, missing));
+  EXPECT_EQ(no_key.exit_code, 2);
+  EXPECT_NE(no_key.err.find("tls.private_key " + missing + ": no such file"), std::string::npos) << no_key.err;
+
+  const auto mismatched = check(TlsYaml(pki_.server_cert, other_.server_key));
+  EXPECT_EQ(mismatched.exit_code, 2);
+  EXPECT_NE(mismatched.err.find("tls.private_key " + other_.server_key + " does not match the certificate"),
+            std::string::npos) << mismatched.err;
+
+  const auto not_a_key = check(TlsYaml(pki_.server_cert, pki_.ca));
+  EXPECT_EQ(not_a_key.exit_code, 2);
+  EXPECT_NE(not_a_key.err.find("not an unencrypted PEM private key"), std::string::npos) << not_a_key.err;
+
+  const auto half = check("tls:\n  certificate_chain: " + pki_.server_cert + "\n");
+  EXPECT_EQ(half.exit_code, 2);
+  EXPECT_NE(half.err.find("certificate_chain and private_key go together"), std::string::npos) << half.err;
+
+  const auto good = check(TlsYaml(pki_.server_cert, pki_.server_key));
+  EXPECT_EQ(good.exit_code, 0) << good.err;
+}
+
+TEST_F(Tls, AnAuthTokenIsRefusedInClearTextOffLoopbackUnlessAllowed) {
+  const auto check = [&](const std::string& server_yaml, const std::string& sections = "") {
+    const std::string path = dir_.path() + "/token.yaml";
+    std::ofstream(path) << "server:\n  auth_token: s3cret\n" << server_yaml << sections
+                        << "robots:\n  - id: kr5\n    urdf: builtin\n";
+    return RunCommand(arref::testing::kServerPath + " --check-config --config " + path);
+  };
+  const auto refused = check("  address: 0.0.0.0\n");
+  EXPECT_EQ(refused.exit_code, 2);
+  EXPECT_NE(refused.err.find("not loopback: every headset's token would cross the network in clear text"),
+            std::string::npos) << refused.err;
+  EXPECT_NE(refused.err.find("allow_plaintext_token"), std::string::npos) << refused.err;
+
+  const auto allowed = check("  address: 0.0.0.0\n  allow_plaintext_token: true\n");
+  EXPECT_EQ(allowed.exit_code, 0) << allowed.err;
+  EXPECT_NE(allowed.err.find("clear text"), std::string::npos) << "the risk is logged: " << allowed.err;
+
+  EXPECT_EQ(check("  address: 127.0.0.1\n").exit_code, 0);
+  EXPECT_EQ(check("  address: 0.0.0.0\n", TlsYaml(pki_.server_cert, pki_.server_key)).exit_code, 0);
+  // The command line's address is the one that counts.
+  const std::string path = dir_.path() + "/token.yaml";
+  std::ofstream(path) << "server:\n  auth_token: s3cret\n  address: 127.0.0.1\nrobots:\n  - id: kr5\n    urdf: builtin\n";
+  const auto overridden = RunCommand(arref::testing::kServerPath + " --check-config --address 0.0.0.0 --config " + path);
+  EXPECT_EQ(overridden.exit_code, 2) << overridden.err;
+}
+
+}  // namespace
+}  // namespace arref::headset

@@ -30,6 +30,8 @@ werror=OFF
 # The suite built with -fsanitize=$1 in its own folder. Reports of the test processes and of
 # the servers and CLIs they start go to files (log_path), so none is lost in a child's stderr;
 # any such file fails the run. Suppressions: tests/sanitizers/*.supp (third-party code only).
+# ros_bridge is left out: its server is the same as python_client's (which runs), and its
+# tracking check needs a server fast enough to drop few frames, which a sanitized one is not.
 sanitized_suite() {
   local list=$1 dir
   case $list in
@@ -50,7 +52,7 @@ sanitized_suite() {
   LSAN_OPTIONS="suppressions=$supp/lsan.supp:print_suppressions=0" \
   UBSAN_OPTIONS="$common:suppressions=$supp/ubsan.supp" \
   TSAN_OPTIONS="$common:second_deadlock_stack=1:suppressions=$supp/tsan.supp" \
-    ctest --test-dir "$dir" --output-on-failure -j "$(nproc)" "${ctest_args[@]}" || status=$?
+    ctest --test-dir "$dir" --output-on-failure -j "$(nproc)" -E '^ros_bridge$' "${ctest_args[@]}" || status=$?
   if compgen -G "$logs/report*" >/dev/null; then
     echo "arref: sanitizer reports in $logs:" >&2
     for f in "$logs"/report*; do echo "== $f" >&2; head -60 "$f" >&2; done

@@ -112,7 +112,7 @@ TEST(ServerConfig, RegistrationYamlReadsBackTheSameSettings) {
   ASSERT_TRUE(back.ok()) << back.status().ToString() << "\n" << RegistrationYaml(*config);
   const RegistrationOptions& a = config->registration;
   const RegistrationOptions& b = back->registration;
-  EXPECT_EQ(MethodName(b.method), "pcl-icp");
+  EXPECT_STREQ(MethodName(b.method), "pcl-icp");
   EXPECT_EQ(b.crop_radius_m, a.crop_radius_m);
   EXPECT_EQ(b.scene_samples, 9000u);
   EXPECT_EQ(b.model_samples, 4000u);

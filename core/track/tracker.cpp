@@ -85,6 +85,7 @@ struct Tracker::Impl {
   // the filter before it replaces it, filtered on its own.
   std::optional<PoseFilter> candidate;
   int candidate_frames = 0;
+  bool candidate_from_jump_view = false;  // found at the camera's view of a jump (coverage bar)
   // Where the robot is if the world moved with the camera at its last jump: the camera's step
   // across that frame applied to the filtered pose. It stays put in the new world, while a
   // guess from the last fitted frame's camera drifts off with the wearer's walk.
@@ -101,8 +102,9 @@ struct Tracker::Impl {
   PointCloud DepthPoints(const DepthFrame& f, const ModelView& view, const Iso3& T_world_base, const Aabb& crop) const;
   struct Agreement { double agreement = 0.0, coverage = 0.0, support = 0.0; };
   Agreement AgreementAt(const DepthFrame& f, const ModelView& view, const Iso3& T_world_base) const;
-  bool Reacquires(const Measurement& m) const {
-    return m.agreement >= settings.min_reacquire_agreement && m.coverage >= settings.min_reacquire_coverage;
+  bool Reacquires(const Measurement& m, bool jump_view = false) const {
+    return m.agreement >= settings.min_reacquire_agreement &&
+           m.coverage >= (jump_view ? settings.min_jump_view_coverage : settings.min_reacquire_coverage);
   }
   Mat4 Covariance(const PointCloud& source, const TargetCloud& target, const Iso3& T_base_world) const;
   std::optional<Iso3> GridSearch(const DepthFrame& f, const std::vector<Iso3>& guesses, TrackResult* out) const;
@@ -384,8 +386,8 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
     if (in_gate(local)) explained = std::max(explained, local.support);
   }
   out.agreement_filtered = explained;
-  auto clearly_better = [&](const Measurement& x) {
-    return I.Reacquires(x) && x.support >= explained + s.rereference_margin;
+  auto clearly_better = [&](const Measurement& x, bool jump_view = false) {
+    return I.Reacquires(x, jump_view) && x.support >= explained + s.rereference_margin;
   };
   auto adopt_candidate = [&](const Measurement& c) {
     I.filter = std::move(*I.candidate);
@@ -400,7 +402,7 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
   if (I.candidate) {
     ++out.hypotheses;
     const Measurement c = I.Measure(frame, StateToPose(I.candidate->state()), s.icp_distances_m, s.icp_iterations, &out);
-    if (clearly_better(c) && I.candidate->Update(PoseToState(c.T_world_base), c.covariance, frame.time_s, false) ==
+    if (clearly_better(c, I.candidate_from_jump_view) && I.candidate->Update(PoseToState(c.T_world_base), c.covariance, frame.time_s, false) ==
                                  FilterVerdict::kAccepted) {
       if (++I.candidate_frames >= s.confirm_frames) {
         spdlog::info("tracker: re-referenced after {} frames agreeing {:.2f} against the filter's {:.2f}",
@@ -440,16 +442,17 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
   if (!jumped && I.lost_frames <= s.lost_frames_before_search) return finish(TrackState::kLost);
   // A pose found now restarts at once only when there is no filter to replace (the first
   // frames after a seed); otherwise it becomes a candidate if it explains the frame clearly better.
-  auto found = [&](const Measurement& x, const char* how) -> std::optional<TrackResult> {
+  auto found = [&](const Measurement& x, const char* how, bool jump_view = false) -> std::optional<TrackResult> {
     if (!tracking) {
       spdlog::info("tracker: acquired {}", how);
       I.seed.reset();
       return restart(x);
     }
-    if (!clearly_better(x)) return std::nullopt;
+    if (!clearly_better(x, jump_view)) return std::nullopt;
     I.candidate = PoseFilter(s.filter);
     I.candidate->Reset(PoseToState(x.T_world_base), x.covariance, frame.time_s);
     I.candidate_frames = 1;
+    I.candidate_from_jump_view = jump_view;
     spdlog::info("tracker: candidate {}, {:.3f} m from the filter's pose{}, agreeing {:.2f} against {:.2f}", how,
                  (x.T_world_base.translation() - predicted.translation()).norm(), jumped ? " (the camera jumped)" : "",
                  x.support, explained);
@@ -461,12 +464,21 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
   if (!relative && I.last_T_world_base && I.last_T_world_camera)
     relative = StateToPose(PoseToState(frame.T_world_camera * I.last_T_world_camera->inverse() * *I.last_T_world_base));
   if (relative) {
+    // Across a jump of the world under a steady head the camera's view is centimetres off, so
+    // the tracking distances come first: the wide ones reach the clutter round a thin arm and
+    // can pull the fit off a right guess.
     ++out.hypotheses;
-    const Measurement r = I.Measure(frame, *relative, wide, s.icp_iterations, &out);
+    Measurement r = I.Measure(frame, *relative, s.icp_distances_m, s.icp_iterations, &out);
+    bool jump_view = I.jump_guess.has_value();  // the relaxed coverage bar holds for this fit only
+    if (!I.Reacquires(r, jump_view)) {
+      ++out.hypotheses;
+      r = I.Measure(frame, *relative, wide, s.icp_iterations, &out);
+      jump_view = false;
+    }
     spdlog::debug("tracker: the camera's view{}: agreement {:.2f}, coverage {:.2f}, {} model / {} depth points",
                   I.jump_guess ? " at the jump" : "", r.agreement, r.coverage, r.model_points, r.depth_points);
-    if (I.Reacquires(r))
-      if (auto result = found(r, "from the camera's view")) return *result;
+    if (I.Reacquires(r, jump_view))
+      if (auto result = found(r, "from the camera's view", jump_view)) return *result;
     guesses.push_back(*relative);
   }
   if (const auto pose = I.GridSearch(frame, guesses, &out)) {

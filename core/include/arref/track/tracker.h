@@ -42,6 +42,10 @@ struct TrackerSettings {
   // ... and cover at least this share of the visible model pixels (the rest occluded): a model
   // placed on the wrong object agrees only where that object happens to lie.
   double min_reacquire_coverage = 0.5;
+  // ... except for the pose the camera's own jump predicts, fitted with the tracking distances:
+  // one guess from head tracking, not the best of a search, so a thin arm half hidden behind a
+  // prop is still taken (its agreement must still reach min_reacquire_agreement).
+  double min_jump_view_coverage = 0.25;
   // A pose other than the filter's (a world jump, a re-acquisition) replaces it only when it
   // agrees with at least this much more of the frame than the filter's own explanation does
   // (its pose, or this frame's fit when the filter accepts it), on `confirm_frames` frames in a

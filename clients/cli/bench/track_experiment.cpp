@@ -225,10 +225,11 @@ Status TrackExperiment(const Config& config, Tables* tables) {
           dst->insert(dst->end(), src->begin(), src->end());
         if (s.had_jump && s.recovery_s < 0) unrecovered = true;
         worst_recovery = std::max(worst_recovery, s.recovery_s);
-        spdlog::info("bench: track {} {} stream {}: {}/{} within 10 mm, recovery {:.2f} s, frame median {:.1f} ms, "
-                     "{} lost, {} without the robot in view, {:.0f} model points per frame",
-                     robot.label, kind_name, k, s.within, s.scored, s.recovery_s, Quantile(s.frame_ms, 0.5), s.lost,
-                     s.no_robot, s.model_points);
+        // The simulator's seed, so that a failing stream can be run again alone (sim::TrackSimulator).
+        spdlog::info("bench: track {} {} stream {} (simulator seed {}): {}/{} within 10 mm, recovery {:.2f} s, frame "
+                     "median {:.1f} ms, {} lost, {} without the robot in view, {:.0f} model points per frame",
+                     robot.label, kind_name, k, spec.seed, s.within, s.scored, s.recovery_s, Quantile(s.frame_ms, 0.5),
+                     s.lost, s.no_robot, s.model_points);
       }
       const double median_ms = Quantile(all.frame_ms, 0.5), baseline_ms = Quantile(all.baseline_ms, 0.5);
       md << fmt::format("| {} ({}) | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n", robot.label,

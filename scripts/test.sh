@@ -31,7 +31,9 @@ werror=OFF
 # the servers and CLIs they start go to files (log_path), so none is lost in a child's stderr;
 # any such file fails the run. Suppressions: tests/sanitizers/*.supp (third-party code only).
 # ros_bridge is left out: its server is the same as python_client's (which runs), and its
-# tracking check needs a server fast enough to drop few frames, which a sanitized one is not.
+# tracking check needs a server fast enough to drop few frames, which a sanitized one is not
+# (ARREF_SANITIZED tells the Python tests so: they check a sanitized server's tracking updates,
+# not their accuracy).
 sanitized_suite() {
   local list=$1 dir
   case $list in
@@ -48,6 +50,7 @@ sanitized_suite() {
   rm -rf "$logs" && mkdir -p "$logs"
   local common="halt_on_error=1:print_stacktrace=1:log_path=$logs/report"
   local status=0
+  ARREF_SANITIZED=$list \
   ASAN_OPTIONS="$common:detect_leaks=1:detect_stack_use_after_return=0" \
   LSAN_OPTIONS="suppressions=$supp/lsan.supp:print_suppressions=0" \
   UBSAN_OPTIONS="$common:suppressions=$supp/ubsan.supp" \

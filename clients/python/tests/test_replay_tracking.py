@@ -3,7 +3,6 @@ tracking session recorded by the real server replayed like the live one."""
 
 import json
 import math
-import os
 import subprocess
 
 import numpy as np
@@ -11,16 +10,13 @@ import numpy as np
 from arref_client import Client, TrackTruth
 from arref_client.recording import read_recording
 from arref_client.tracking import matrix_from_pose, pose_error
-from arref_testing import ARREF, ServerProcess
+from arref_testing import ARREF, SANITIZED, ServerProcess
 
 SETTLED_S = 1.0   # the filter settling from the stream's seed, 4 cm and 3 deg off
 WITHIN_M = 0.010
 # Offline every frame is processed (none dropped, none late), so the live test's allowance for
 # a loaded machine is not needed here.
 WITHIN_FRACTION = 0.95
-# A sanitized live server (scripts/test.sh --sanitize) drops most frames, so its filter can
-# drift apart from the replay's: only the replay's own figures are checked then.
-SANITIZED = bool(os.environ.get("ARREF_SANITIZED"))
 
 
 def replay(path, *args):
@@ -99,6 +95,7 @@ def test_recorded_tracking_session_replays_like_the_live_one(tmp_path, track_str
         # the frame's exposure, on the recording server's clocks
         assert abs(o["frame_time_s"] - u.frame_time_s) < 1e-6
         assert abs(o["frame_time_unix_s"] - u.frame_time_unix_s) < 0.005
+        # A sanitized live server's filter, fed fewer frames, may drift apart from the replay's.
         if truth.frames[u.frame_id]["t_s"] < SETTLED_S or SANITIZED:
             continue
         compared += 1

@@ -3,7 +3,6 @@ the C++ track simulator (`arref simulate-track`) with the true T_world_base of e
 
 import json
 import math
-import os
 import time
 
 import numpy as np
@@ -12,16 +11,13 @@ import pytest
 from arref_client import Client, ClockOffsetEstimator, TrackTruth, errors, pb
 from arref_client.recording import read_recording
 from arref_client.tracking import matrix_from_pose, pose_error
-from arref_testing import python_cli
+from arref_testing import SANITIZED, python_cli
 
 # The tracker holds the base within 10 mm on >= 95 % of simulated long-throw frames
 # by ADD (docs/tracking.md); here the base origin is scored, whose error on this stream is about
 # 5 mm (median), and a loaded test machine drops and delays frames, hence 90 % and 8 mm.
 WITHIN_M = 0.010
 WITHIN_FRACTION = 0.9
-# A sanitized server (scripts/test.sh --sanitize sets this) runs several times slower and drops
-# most frames while it works, so its updates are checked but their accuracy is not.
-SANITIZED = bool(os.environ.get("ARREF_SANITIZED"))
 SETTLED_S = 1.0  # the first second is the filter settling from a seed 4 cm and 3 deg off
 
 

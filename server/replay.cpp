@@ -162,7 +162,7 @@ class OfflineSession {
     if (outcome.error != pb::ERROR_CODE_UNSPECIFIED)  // then it was rejected, or names no robot served
       answer = Error(outcome.error, outcome.message);
     else if (outcome.keep)
-      answer = Answer(FeedJointStream(m, outcome.joints.values, robots_, tracking_, sink_->id()));
+      answer = Answer(FeedJointStream(m, outcome.complete, tracking_, sink_->id()));
     if (outcome.keep) joints_[m.robot_id()] = std::move(outcome.joints);
     return answer;
   }

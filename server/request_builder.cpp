@@ -168,8 +168,10 @@ JointStateOutcome ReadJointState(const pb::JointState& m, const RobotRegistry& r
       return JointStateOutcome{.keep = false, .joints = {}, .error = pb::ERROR_CODE_UNKNOWN_ROBOT,
                                .message = fmt::format("JointState: robot '{}' is not served here (served: {})",
                                                       m.robot_id(), robots.Ids())};
-    if (auto checked = robots.ResolveJoints(*robot, *joints); !checked.ok())
-      return reject(pb::ERROR_CODE_INVALID_ARGUMENT, checked.status().message());
+    auto checked = robots.ResolveJoints(*robot, *joints);
+    if (!checked.ok()) return reject(pb::ERROR_CODE_INVALID_ARGUMENT, checked.status().message());
+    return JointStateOutcome{.keep = true, .joints = SessionJoints{.values = std::move(*joints), .rejected = {}},
+                             .complete = std::move(*checked)};
   }
   return JointStateOutcome{.keep = true, .joints = SessionJoints{.values = std::move(*joints), .rejected = {}}};
 }

@@ -85,6 +85,9 @@ wire::pb::ErrorCode RequestErrorCode(const Status& status);
 struct JointStateOutcome {
   bool keep = true;
   SessionJoints joints;
+  // The robot's complete joints (its defaults under the message's values), when the message
+  // names a served robot and was accepted: what its joint stream takes (FeedJointStream).
+  JointValues complete;
   wire::pb::ErrorCode error = wire::pb::ERROR_CODE_UNSPECIFIED;
   std::string message;
 };

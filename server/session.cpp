@@ -422,7 +422,7 @@ void Session::OnJointState(const pb::JointState& m) {
   if (!outcome.keep) return;
   const JointValues& joints = outcome.joints.values;
   if (outcome.joints.rejected.empty()) {
-    if (auto refused = FeedJointStream(m, joints, ctx_.robots, ctx_.tracking, id_))
+    if (auto refused = FeedJointStream(m, outcome.complete, ctx_.tracking, id_))
       SendError(refused->code, refused->message);
     if (spatial_.size() > 0)
       for (const auto& [name, value] : joints) {

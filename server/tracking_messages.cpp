@@ -55,14 +55,10 @@ std::optional<Refusal> HandleClockReport(const pb::ClockReport& m, TrackingServi
   return std::nullopt;
 }
 
-std::optional<Refusal> FeedJointStream(const pb::JointState& m, const JointValues& joints, const RobotRegistry& robots,
-                                       TrackingService& tracking, std::uint64_t session_id) {
+std::optional<Refusal> FeedJointStream(const pb::JointState& m, const JointValues& complete, TrackingService& tracking,
+                                       std::uint64_t session_id) {
   if (m.robot_id().empty() || m.timestamp_s() <= 0) return std::nullopt;
-  const ServedRobot* robot = robots.Find(m.robot_id());
-  if (!robot) return std::nullopt;  // ReadJointState answered it
-  auto complete = robots.ResolveJoints(*robot, joints);
-  if (!complete.ok()) return std::nullopt;
-  if (auto st = tracking.AddJoints(m.robot_id(), session_id, m.timestamp_s(), *complete); !st.ok())
+  if (auto st = tracking.AddJoints(m.robot_id(), session_id, m.timestamp_s(), complete); !st.ok())
     return Refusal{pb::ERROR_CODE_INVALID_ARGUMENT, "JointState: " + st.message()};
   return std::nullopt;
 }

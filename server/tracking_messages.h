@@ -31,9 +31,8 @@ std::optional<Refusal> HandleDepthFrame(const wire::pb::DepthFrame& m, TrackingS
 std::optional<Refusal> HandleClockReport(const wire::pb::ClockReport& m, TrackingService& tracking,
                                          std::uint64_t session_id);
 // A JointState already accepted (ReadJointState) that names its robot and carries a timestamp
-// is also a sample of that robot's joint stream.
-std::optional<Refusal> FeedJointStream(const wire::pb::JointState& m, const JointValues& joints,
-                                       const RobotRegistry& robots, TrackingService& tracking,
-                                       std::uint64_t session_id);
+// is also a sample of that robot's joint stream: `complete` is JointStateOutcome::complete.
+std::optional<Refusal> FeedJointStream(const wire::pb::JointState& m, const JointValues& complete,
+                                       TrackingService& tracking, std::uint64_t session_id);
 
 }  // namespace arref::server

@@ -701,5 +701,20 @@ TEST(CellSimulator, SeedFamiliesSpanTheirRanges) {
   EXPECT_FALSE(ParseSeedFamily("nonsense").ok());
 }
 
+// The diagnostic family starts every search at the answer.
+TEST(SeedFamilies, TruthSeedsAreTheTruePose) {
+  const Iso3 T_world_base = MakeYawPose(1.2, -0.4, 0.35, 0.7);
+  std::mt19937_64 rng(3);
+  SeedNoise noise;
+  noise.family = SeedFamily::kTruth;
+  const auto seeds = DrawSeeds(T_world_base, noise, 5, rng);
+  ASSERT_EQ(seeds.size(), 5u);
+  for (const Iso3& seed : seeds) EXPECT_TRUE(seed.isApprox(T_world_base, 1e-12));
+  auto parsed = ParseSeedFamily("truth");
+  ASSERT_TRUE(parsed.ok());
+  EXPECT_EQ(*parsed, SeedFamily::kTruth);
+  EXPECT_STREQ(SeedFamilyName(SeedFamily::kTruth), "truth");
+}
+
 }  // namespace
 }  // namespace arref::sim

@@ -206,8 +206,8 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
       ->delimiter(',');
   cmd->add_option("--meshers", args->meshers, "Robustness: meshers of the headset's mesh (own, open3d)")
       ->delimiter(',')->check(CLI::IsMember({"own", "open3d"}));
-  cmd->add_option("--seed-families", args->seed_families, "Robustness: seed families (user, cube, any-yaw, default)")
-      ->delimiter(',')->check(CLI::IsMember({"default", "user", "cube", "any-yaw"}));
+  cmd->add_option("--seed-families", args->seed_families, "Robustness: seed families (user, cube, any-yaw, default; truth: the true pose, a diagnostic of the fit's own error)")
+      ->delimiter(',')->check(CLI::IsMember({"default", "user", "cube", "any-yaw", "truth"}));
   cmd->add_option("--robust-methods", args->robust_methods, "Robustness: registration methods")->capture_default_str();
   cmd->add_option("--split", args->split,
                   "Robustness: dev (without --heldout-robot) or heldout (every robot; cells and seeds from a stream of "

@@ -524,13 +524,14 @@ const char* SeedFamilyName(SeedFamily family) {
     case SeedFamily::kUser: return "user";
     case SeedFamily::kCube: return "cube";
     case SeedFamily::kAnyYaw: return "any-yaw";
+    case SeedFamily::kTruth: return "truth";
     case SeedFamily::kDefault: break;
   }
   return "default";
 }
 
 Result<SeedFamily> ParseSeedFamily(const std::string& name) {
-  for (SeedFamily f : {SeedFamily::kDefault, SeedFamily::kUser, SeedFamily::kCube, SeedFamily::kAnyYaw})
+  for (SeedFamily f : {SeedFamily::kDefault, SeedFamily::kUser, SeedFamily::kCube, SeedFamily::kAnyYaw, SeedFamily::kTruth})
     if (name == SeedFamilyName(f)) return f;
   return Status::InvalidArgument("unknown seed family '" + name + "' (default, user, cube, any-yaw)");
 }
@@ -614,6 +615,7 @@ std::vector<Iso3> DrawSeeds(const Iso3& T_world_base, const SeedNoise& noise, in
   const double yaw = YawOf(T_world_base);
   std::vector<Iso3> seeds;
   std::uniform_real_distribution<double> unit(0.0, 1.0);
+  if (noise.family == SeedFamily::kTruth) return std::vector<Iso3>(static_cast<std::size_t>(std::max(count, 0)), T_world_base);
   if (noise.family != SeedFamily::kDefault) {
     std::normal_distribution<double> user_yaw(0.0, 15.0 * kDeg);
     for (int i = 0; i < count; ++i) {

@@ -113,8 +113,10 @@ struct FusionOptions {
 //            (below it too: the cube placed at the floor, the base on a pedestal), yaw ~15 deg.
 //  kCube:    uniform in a cube +-0.5 m round the base in x, y and z, yaw ~15 deg.
 //  kAnyYaw:  kUser's position with any yaw.
-enum class SeedFamily { kDefault, kUser, kCube, kAnyYaw };
-const char* SeedFamilyName(SeedFamily family);  // "default", "user", "cube", "any-yaw"
+//  kTruth:   the true pose itself. Not a user's: a diagnostic that starts the search at the answer,
+//            so what is left is the fit's own error on that mesh, not the search's.
+enum class SeedFamily { kDefault, kUser, kCube, kAnyYaw, kTruth };
+const char* SeedFamilyName(SeedFamily family);  // "default", "user", "cube", "any-yaw", "truth"
 Result<SeedFamily> ParseSeedFamily(const std::string& name);
 
 // A user's rough placement of the seed cube at the robot base.

@@ -11,21 +11,14 @@
 #include <filesystem>
 #include <fstream>
 
+#include "openssl_errors.h"
+
 namespace arref::server {
 namespace {
 
 namespace ssl = net::ssl;
 
-// OpenSSL's queued errors as one line ("" when none), emptying the queue.
-std::string OpenSslErrors() {
-  std::string out;
-  while (const unsigned long e = ERR_get_error()) {
-    char text[256];
-    ERR_error_string_n(e, text, sizeof text);
-    out += (out.empty() ? "" : "; ") + std::string(text);
-  }
-  return out;
-}
+using tls::OpenSslErrors;
 
 Status CheckReadable(const std::string& path, const std::string& key) {
   std::error_code ec;

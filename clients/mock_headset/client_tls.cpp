@@ -8,21 +8,14 @@
 
 #include <cerrno>
 #include <csignal>
-#include <cstring>
 #include <mutex>
+
+#include "openssl_errors.h"
 
 namespace arref::headset {
 namespace {
 
-std::string OpenSslErrors() {
-  std::string out;
-  while (const unsigned long e = ERR_get_error()) {
-    char text[256];
-    ERR_error_string_n(e, text, sizeof text);
-    out += (out.empty() ? "" : "; ") + std::string(text);
-  }
-  return out.empty() ? std::string(std::strerror(errno)) : out;
-}
+using tls::OpenSslErrorsOrErrno;
 
 bool IsIpAddress(const std::string& host) {
   unsigned char buf[sizeof(in6_addr)];
@@ -61,14 +54,16 @@ Status ConfigureContext(SSL_CTX* context, const TlsClientOptions& o) {
                                         : SSL_CTX_load_verify_locations(context, o.ca_file.c_str(), nullptr) == 1;
   if (!loaded)
     return Status::InvalidArgument(fmt::format("TLS CA {}: cannot be loaded: {}",
-                                               o.ca_file.empty() ? "(the system's)" : o.ca_file, OpenSslErrors()));
+                                               o.ca_file.empty() ? "(the system's)" : o.ca_file,
+                                               OpenSslErrorsOrErrno()));
   if (o.certificate.empty() != o.private_key.empty())
     return Status::InvalidArgument("a TLS client certificate and its key go together (one is missing)");
   if (!o.certificate.empty()) {
     if (SSL_CTX_use_certificate_chain_file(context, o.certificate.c_str()) != 1)
-      return Status::InvalidArgument(fmt::format("TLS client certificate {}: {}", o.certificate, OpenSslErrors()));
+      return Status::InvalidArgument(
+          fmt::format("TLS client certificate {}: {}", o.certificate, OpenSslErrorsOrErrno()));
     if (SSL_CTX_use_PrivateKey_file(context, o.private_key.c_str(), SSL_FILETYPE_PEM) != 1)
-      return Status::InvalidArgument(fmt::format("TLS client key {}: {}", o.private_key, OpenSslErrors()));
+      return Status::InvalidArgument(fmt::format("TLS client key {}: {}", o.private_key, OpenSslErrorsOrErrno()));
   }
   return Status::Ok();
 }
@@ -94,7 +89,7 @@ std::string HandshakeFailure(SSL* ssl, const TlsClientOptions& o, const std::str
   if (verify != X509_V_OK)
     return fmt::format("the server's certificate did not verify: {} (trusted: {}; expected name: {})",
                        X509_verify_cert_error_string(verify), o.ca_file.empty() ? "the system's CAs" : o.ca_file, name);
-  return OpenSslErrors();
+  return OpenSslErrorsOrErrno();
 }
 
 }  // namespace
@@ -107,10 +102,10 @@ Result<std::unique_ptr<ClientTls>> ClientTls::Handshake(int fd, const std::strin
   ERR_clear_error();
   auto state = std::make_unique<State>();
   state->context = SSL_CTX_new(TLS_client_method());
-  if (!state->context) return Status::Internal("TLS: " + OpenSslErrors());
+  if (!state->context) return Status::Internal("TLS: " + OpenSslErrorsOrErrno());
   ARREF_RETURN_IF_ERROR(ConfigureContext(state->context, o));
   state->ssl = SSL_new(state->context);
-  if (!state->ssl || SSL_set_fd(state->ssl, fd) != 1) return Status::Internal("TLS: " + OpenSslErrors());
+  if (!state->ssl || SSL_set_fd(state->ssl, fd) != 1) return Status::Internal("TLS: " + OpenSslErrorsOrErrno());
   const std::string name = o.server_name.empty() ? host : o.server_name;
   ARREF_RETURN_IF_ERROR(ExpectName(state->ssl, name));
   if (SSL_connect(state->ssl) != 1)
@@ -123,7 +118,7 @@ Status ClientTls::Write(const char* data, std::size_t size) {
   while (sent < size) {
     std::size_t n = 0;
     if (SSL_write_ex(state_->ssl, data + sent, size - sent, &n) != 1)
-      return Unavailable("sending over TLS: " + OpenSslErrors());
+      return Unavailable("sending over TLS: " + OpenSslErrorsOrErrno());
     sent += n;
   }
   return Status::Ok();
@@ -139,7 +134,7 @@ Result<std::size_t> ClientTls::Read(char* data, std::size_t size) {
       if (errno == EAGAIN || errno == EWOULDBLOCK)
         return Status::ResourceExhausted("no reply within the socket's timeout");
       [[fallthrough]];
-    default: return Unavailable("receiving over TLS: " + OpenSslErrors());
+    default: return Unavailable("receiving over TLS: " + OpenSslErrorsOrErrno());
   }
 }
 

@@ -71,8 +71,10 @@ void Session::StartTls() {
 void Session::OnTlsHandshake(const boost::system::error_code& ec) {
   if (state_ >= State::kClosing) return;
   if (ec) {
-    spdlog::warn("session {} ({}): TLS handshake failed: {}", id_, peer_, ec.message());
-    return CloseNow("TLS handshake failed: " + ec.message());
+    const std::string refused = transport_.PeerVerifyError();
+    const std::string why = ec.message() + (refused.empty() ? "" : " (the client's certificate: " + refused + ")");
+    spdlog::warn("session {} ({}): TLS handshake failed: {}", id_, peer_, why);
+    return CloseNow("TLS handshake failed: " + why);
   }
   handshaking_ = false;
   ReadMore();

@@ -85,6 +85,16 @@ std::string Subject(X509* certificate) {
   return name;
 }
 
+// Clients refuse a certificate outside its validity: said at startup rather than only in
+// each client's error.
+std::string ValidityWarning(X509* certificate) {
+  if (X509_cmp_current_time(X509_get0_notAfter(certificate)) < 0)
+    return "; the certificate HAS EXPIRED: clients will refuse it";
+  if (X509_cmp_current_time(X509_get0_notBefore(certificate)) > 0)
+    return "; the certificate is NOT YET VALID (or this machine's clock is wrong): clients will refuse it";
+  return "";
+}
+
 }  // namespace
 
 // ---------------------------------------------------------------- TlsContext
@@ -100,9 +110,8 @@ Result<std::unique_ptr<TlsContext>> TlsContext::Load(const TlsConfig& config) {
   ARREF_RETURN_IF_ERROR(UseCertificateAndKey(context, config));
   if (!config.client_ca.empty()) ARREF_RETURN_IF_ERROR(RequireClientCertificates(context, config.client_ca));
   X509* certificate = SSL_CTX_get0_certificate(context.native_handle());
-  const bool expired = X509_cmp_current_time(X509_get0_notAfter(certificate)) < 0;
   out->description_ = fmt::format("TLS 1.2+ with {} ({}){}{}", config.certificate_chain, Subject(certificate),
-                                  expired ? "; the certificate HAS EXPIRED: clients will refuse it" : "",
+                                  ValidityWarning(certificate),
                                   config.client_ca.empty() ? "" : "; client certificates signed by " + config.client_ca);
   return out;
 }
@@ -124,6 +133,12 @@ Transport::~Transport() = default;
 
 void Transport::AsyncHandshake(DoneHandler done) {
   tls_->stream.async_handshake(ssl::stream_base::server, std::move(done));
+}
+
+std::string Transport::PeerVerifyError() {
+  if (!tls_) return "";
+  const long verify = SSL_get_verify_result(tls_->stream.native_handle());
+  return verify == X509_V_OK ? "" : X509_verify_cert_error_string(verify);
 }
 
 void Transport::AsyncReadSome(net::mutable_buffer buffer, IoHandler done) {

@@ -56,6 +56,9 @@ class Transport {
 
   // The server side of the TLS handshake; a plain transport has none (call only when encrypted).
   void AsyncHandshake(DoneHandler done);
+  // Why the client's certificate was refused (e.g. "certificate has expired"), after a failed
+  // handshake; "" when it was not (or there is no TLS).
+  std::string PeerVerifyError();
   void AsyncReadSome(net::mutable_buffer buffer, IoHandler done);
   void AsyncWrite(net::const_buffer buffer, IoHandler done);  // the whole buffer
   // Ends a pending read (the client gets no more of our attention); writes may still finish.

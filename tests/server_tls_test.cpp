@@ -10,6 +10,7 @@
 #include <gtest/gtest.h>
 
 #include <chrono>
+#include <filesystem>
 #include <fstream>
 #include <string>
 #include <thread>
@@ -41,15 +42,30 @@ void Run(const std::string& command) {
 struct Pki {
   std::string ca, server_cert, server_key;
   std::string client_cert, client_key;  // for a server with tls.client_ca
+  std::string prefix;                   // of the CA's other files (key, extensions, openssl ca's database)
 };
+
+const std::string kEcKey = " -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes ";
+
+// `openssl ca` (unlike `openssl x509 -req`) sets any validity dates; it keeps a database of
+// what it signed, allowed to hold the same subject twice.
+void WriteCaDatabase(const std::string& d) {
+  std::ofstream(d + "_ca.cnf") << "[ca]\ndefault_ca = test\n[test]\ndatabase = " << d << "_ca_index.txt\n"
+                               << "new_certs_dir = " << std::filesystem::path(d).parent_path().string() << "\n"
+                               << "serial = " << d << "_ca_serial\ndefault_md = sha256\npolicy = any\n"
+                               << "unique_subject = no\n[any]\ncommonName = supplied\n";
+  std::ofstream(d + "_ca_index.txt");
+  std::ofstream(d + "_ca_serial") << "1000\n";
+}
 
 Pki MakePki(const std::string& dir, const std::string& name) {
   const std::string d = dir + "/" + name;
-  const std::string ec = " -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes ";
-  Pki p{d + "_ca.pem", d + "_server.pem", d + "_server.key", d + "_client.pem", d + "_client.key"};
+  const std::string& ec = kEcKey;
+  Pki p{d + "_ca.pem", d + "_server.pem", d + "_server.key", d + "_client.pem", d + "_client.key", d};
   std::ofstream(d + "_ext.cnf") << "subjectAltName=DNS:localhost,IP:127.0.0.1\nbasicConstraints=CA:FALSE\n"
                                    "extendedKeyUsage=serverAuth\n";
   std::ofstream(d + "_client_ext.cnf") << "basicConstraints=CA:FALSE\nextendedKeyUsage=clientAuth\n";
+  WriteCaDatabase(d);
   Run("openssl req -x509" + ec + "-keyout " + d + "_ca.key -out " + p.ca + " -days 2 -subj '/CN=arref test CA " + name +
       "'");
   Run("openssl req" + ec + "-keyout " + p.server_key + " -out " + d + "_server.csr -subj /CN=localhost");
@@ -59,6 +75,29 @@ Pki MakePki(const std::string& dir, const std::string& name) {
   Run("openssl x509 -req -in " + d + "_client.csr -CA " + p.ca + " -CAkey " + d + "_ca.key -CAcreateserial -out " +
       p.client_cert + " -days 2 -extfile " + d + "_client_ext.cnf");
   return p;
+}
+
+// Validity dates as `openssl ca` takes them: long past, and far ahead.
+struct Dates {
+  std::string start, end;
+};
+const Dates kExpired{"20200101000000Z", "20200102000000Z"};
+const Dates kNotYetValid{"20990101000000Z", "20991231000000Z"};
+
+struct Issued {
+  std::string cert, key;
+};
+
+// A certificate from pki's CA valid only within `dates`: the server's (localhost, 127.0.0.1)
+// or, `client`, a headset's.
+Issued IssueWithDates(const Pki& pki, const std::string& name, bool client, const Dates& dates) {
+  const std::string d = pki.prefix + "_" + name;
+  Run("openssl req" + kEcKey + "-keyout " + d + ".key -out " + d + ".csr -subj /CN=" +
+      (client ? "headset-1" : "localhost"));
+  Run("openssl ca -batch -notext -config " + pki.prefix + "_ca.cnf -cert " + pki.ca + " -keyfile " + pki.prefix +
+      "_ca.key -in " + d + ".csr -out " + d + ".pem -startdate " + dates.start + " -enddate " + dates.end +
+      " -extfile " + pki.prefix + (client ? "_client_ext.cnf" : "_ext.cnf"));
+  return {d + ".pem", d + ".key"};
 }
 
 std::string TlsYaml(const std::string& cert, const std::string& key) {
@@ -146,6 +185,91 @@ TEST_F(Tls, AClientTrustingAnotherCaFailsAndTheServerKeepsServing) {
   EXPECT_NE(server.Log().find("TLS handshake failed"), std::string::npos) << server.Log();
   EXPECT_TRUE(server.alive());
   ExpectHelloWorks(server);
+}
+
+// True once the server's log holds `text` (it is written as the server goes), false after timeout_s.
+bool LogShows(const ServerProcess& server, const std::string& text, double timeout_s = 10) {
+  const auto deadline = Clock::now() + std::chrono::duration<double>(timeout_s);
+  while (server.Log().find(text) == std::string::npos) {
+    if (Clock::now() > deadline) return false;
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  return true;
+}
+
+// A server certificate outside its dates: the server warns at startup, and the client refuses
+// it with the reason, the certificate's dates and its own clock (a wrong clock is the usual
+// cause of "not yet valid"); the server keeps serving.
+TEST_F(Tls, AClientRefusesAServerCertificateOutsideItsDatesSayingWhy) {
+  struct Case {
+    std::string name;
+    Dates dates;
+    std::string reason, shown_dates, startup_warning;
+  };
+  const std::vector<Case> cases{
+      {"expired", kExpired, "certificate has expired", "valid from 2020-01-01 00:00:00 UTC to 2020-01-02 00:00:00 UTC",
+       "the certificate HAS EXPIRED"},
+      {"not_yet_valid", kNotYetValid, "certificate is not yet valid",
+       "valid from 2099-01-01 00:00:00 UTC to 2099-12-31 00:00:00 UTC", "the certificate is NOT YET VALID"}};
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    const Issued issued = IssueWithDates(pki_, c.name, false, c.dates);
+    ServerSettings s;
+    s.sections_yaml = TlsYaml(issued.cert, issued.key);
+    ServerProcess server(s);
+    EXPECT_TRUE(LogShows(server, c.startup_warning)) << server.Log();
+    auto conn = Connection::Connect("127.0.0.1", server.port(), 10, 0, Trusting(pki_.ca));
+    ASSERT_FALSE(conn.ok()) << "connected to a server whose certificate is " << c.name;
+    const std::string message = conn.status().message();
+    EXPECT_NE(message.find("the server's certificate did not verify: " + c.reason), std::string::npos) << message;
+    EXPECT_NE(message.find("/CN=localhost is " + c.shown_dates), std::string::npos) << message;
+    EXPECT_NE(message.find("this machine's clock says 20"), std::string::npos) << message;
+    EXPECT_TRUE(LogShows(server, "TLS handshake failed")) << server.Log();
+    EXPECT_TRUE(server.alive());
+  }
+}
+
+// The mock headset's command line says it as well, and fails.
+TEST_F(Tls, TheMockHeadsetRefusesAnExpiredServerCertificate) {
+  const Issued expired = IssueWithDates(pki_, "expired", false, kExpired);
+  ServerSettings s;
+  s.sections_yaml = TlsYaml(expired.cert, expired.key);
+  ServerProcess server(s);
+  const auto run = RunCommand(kMockPath + " --port " + std::to_string(server.port()) + " --tls-ca " + pki_.ca +
+                              " --batches 1 --timeout 60 --rng-seed 1");
+  EXPECT_NE(run.exit_code, 0);
+  EXPECT_NE(run.out.find("did not verify: certificate has expired"), std::string::npos) << run.out << run.err;
+}
+
+// tls.client_ca: a client certificate its CA signed but expired is refused, the server's log
+// says why, and the server goes on serving headsets with valid certificates.
+TEST_F(Tls, AnExpiredClientCertificateIsRefusedAndTheServerKeepsServing) {
+  ServerSettings s = Settings();
+  s.sections_yaml += "  client_ca: " + pki_.ca + "\n";
+  ServerProcess server(s);
+  const Issued expired = IssueWithDates(pki_, "expired_client", true, kExpired);
+  TlsClientOptions o = Trusting(pki_.ca);
+  o.certificate = expired.cert;
+  o.private_key = expired.key;
+  // TLS 1.3: the client's side of the handshake ends before the server checks the certificate,
+  // so the server's alert shows at the connect or at the first read.
+  std::string refusal;
+  auto conn = Connection::Connect("127.0.0.1", server.port(), 10, 0, o);
+  if (conn.ok()) {
+    (void)conn->Send(Hello());
+    const auto reply = conn->Receive(30);
+    ASSERT_FALSE(reply.ok()) << "an expired client certificate was let in";
+    refusal = reply.status().message();
+  } else {
+    refusal = conn.status().message();
+  }
+  EXPECT_NE(refusal.find("certificate expired"), std::string::npos) << refusal;  // the server's alert
+  EXPECT_TRUE(LogShows(server, "(the client's certificate: certificate has expired)")) << server.Log();
+  EXPECT_TRUE(server.alive());
+  TlsClientOptions valid = Trusting(pki_.ca);
+  valid.certificate = pki_.client_cert;
+  valid.private_key = pki_.client_key;
+  ExpectHelloWorks(server, valid);
 }
 
 TEST_F(Tls, APlaintextClientIsClosedAndTheServerKeepsServing) {

@@ -8,6 +8,7 @@
 
 #include <cerrno>
 #include <csignal>
+#include <ctime>
 #include <mutex>
 
 #include "openssl_errors.h"
@@ -84,12 +85,46 @@ Status ExpectName(SSL* ssl, const std::string& name) {
   return Status::Ok();
 }
 
+std::string UtcText(const std::tm& t) {
+  char text[32];
+  return std::strftime(text, sizeof text, "%Y-%m-%d %H:%M:%S UTC", &t) > 0 ? text : "?";
+}
+
+std::string UtcText(const ASN1_TIME* time) {
+  std::tm t{};
+  return ASN1_TIME_to_tm(time, &t) == 1 ? UtcText(t) : "?";
+}
+
+std::string Subject(X509* certificate) {
+  char name[256] = "?";
+  X509_NAME_oneline(X509_get_subject_name(certificate), name, sizeof name);
+  return name;
+}
+
+// For a certificate refused for its dates: which one the server sent, its validity and this
+// machine's clock (a clock set wrong is the usual cause of "not yet valid").
+std::string ValidityNote(SSL* ssl) {
+  STACK_OF(X509)* chain = SSL_get_peer_cert_chain(ssl);
+  for (int i = 0; chain != nullptr && i < sk_X509_num(chain); ++i) {
+    X509* c = sk_X509_value(chain, i);
+    if (X509_cmp_current_time(X509_get0_notBefore(c)) <= 0 && X509_cmp_current_time(X509_get0_notAfter(c)) >= 0)
+      continue;
+    const std::time_t now = std::time(nullptr);
+    std::tm now_utc{};
+    gmtime_r(&now, &now_utc);
+    return fmt::format("; {} is valid from {} to {}, and this machine's clock says {}", Subject(c),
+                       UtcText(X509_get0_notBefore(c)), UtcText(X509_get0_notAfter(c)), UtcText(now_utc));
+  }
+  return "";
+}
+
 std::string HandshakeFailure(SSL* ssl, const TlsClientOptions& o, const std::string& name) {
   const long verify = SSL_get_verify_result(ssl);
-  if (verify != X509_V_OK)
-    return fmt::format("the server's certificate did not verify: {} (trusted: {}; expected name: {})",
-                       X509_verify_cert_error_string(verify), o.ca_file.empty() ? "the system's CAs" : o.ca_file, name);
-  return OpenSslErrorsOrErrno();
+  if (verify == X509_V_OK) return OpenSslErrorsOrErrno();
+  const bool dates = verify == X509_V_ERR_CERT_HAS_EXPIRED || verify == X509_V_ERR_CERT_NOT_YET_VALID;
+  return fmt::format("the server's certificate did not verify: {} (trusted: {}; expected name: {}{})",
+                     X509_verify_cert_error_string(verify), o.ca_file.empty() ? "the system's CAs" : o.ca_file, name,
+                     dates ? ValidityNote(ssl) : "");
 }
 
 }  // namespace

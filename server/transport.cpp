@@ -121,8 +121,9 @@ TlsContext::~TlsContext() = default;
 // ---------------------------------------------------------------- Transport
 
 struct Transport::Tls {
-  Tls(tcp::socket& socket, ssl::context& context) : stream(socket, context) {}
+  Tls(tcp::socket& socket, ssl::context& context) : stream(socket, context), shutdown_timer(socket.get_executor()) {}
   ssl::stream<tcp::socket&> stream;
+  net::steady_timer shutdown_timer;
 };
 
 Transport::Transport(tcp::socket socket, TlsContext* tls) : socket_(std::move(socket)) {
@@ -158,6 +159,22 @@ void Transport::AsyncWrite(net::const_buffer buffer, IoHandler done) {
 void Transport::ShutdownReceive() {
   boost::system::error_code ignored;
   socket_.shutdown(tcp::socket::shutdown_receive, ignored);
+}
+
+void Transport::AsyncCloseNotify(std::chrono::milliseconds deadline, std::function<void()> done) {
+  if (!tls_) return done();
+  // At the deadline, Close, which ends the shutdown with an error. Both handlers share `done`
+  // (and what it holds, the session): neither outlives it.
+  auto finish = std::make_shared<std::function<void()>>(std::move(done));
+  tls_->shutdown_timer.expires_after(deadline);
+  tls_->shutdown_timer.async_wait([this, finish](const boost::system::error_code& ec) {
+    if (!ec) Close();
+  });
+  tls_->stream.async_shutdown([this, finish](const boost::system::error_code&) {
+    // An error is the client's (gone, or it cut its side) or the deadline's: nothing more to send.
+    tls_->shutdown_timer.cancel();
+    (*finish)();
+  });
 }
 
 void Transport::Close() {

@@ -48,8 +48,8 @@ namespace {
 Status ConfigureContext(SSL_CTX* context, const TlsClientOptions& o) {
   SSL_CTX_set_min_proto_version(context, TLS1_2_VERSION);
   SSL_CTX_set_verify(context, SSL_VERIFY_PEER, nullptr);
-  // The server closes without close_notify (the framing tells a cut stream): that is an end of
-  // stream, not an error.
+  // The server ends a session with close_notify, but cuts a connection it drops (a stalled
+  // client) without one; the framing tells a cut stream, so that is an end of stream too.
   SSL_CTX_set_options(context, SSL_OP_IGNORE_UNEXPECTED_EOF);
   const bool loaded = o.ca_file.empty() ? SSL_CTX_set_default_verify_paths(context) == 1
                                         : SSL_CTX_load_verify_locations(context, o.ca_file.c_str(), nullptr) == 1;

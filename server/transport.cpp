@@ -18,6 +18,7 @@ namespace {
 
 namespace ssl = net::ssl;
 
+using tls::CertificateSubject;
 using tls::OpenSslErrors;
 
 Status CheckReadable(const std::string& path, const std::string& key) {
@@ -79,12 +80,6 @@ Status RequireClientCertificates(ssl::context& context, const std::string& clien
   return Status::Ok();
 }
 
-std::string Subject(X509* certificate) {
-  char name[256] = "?";
-  X509_NAME_oneline(X509_get_subject_name(certificate), name, sizeof name);
-  return name;
-}
-
 // Clients refuse a certificate outside its validity: said at startup rather than only in
 // each client's error.
 std::string ValidityWarning(X509* certificate) {
@@ -110,8 +105,8 @@ Result<std::unique_ptr<TlsContext>> TlsContext::Load(const TlsConfig& config) {
   ARREF_RETURN_IF_ERROR(UseCertificateAndKey(context, config));
   if (!config.client_ca.empty()) ARREF_RETURN_IF_ERROR(RequireClientCertificates(context, config.client_ca));
   X509* certificate = SSL_CTX_get0_certificate(context.native_handle());
-  out->description_ = fmt::format("TLS 1.2+ with {} ({}){}{}", config.certificate_chain, Subject(certificate),
-                                  ValidityWarning(certificate),
+  out->description_ = fmt::format("TLS 1.2+ with {} ({}){}{}", config.certificate_chain,
+                                  CertificateSubject(certificate), ValidityWarning(certificate),
                                   config.client_ca.empty() ? "" : "; client certificates signed by " + config.client_ca);
   return out;
 }

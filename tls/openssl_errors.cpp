@@ -1,6 +1,7 @@
 #include "openssl_errors.h"
 
 #include <openssl/err.h>
+#include <openssl/x509.h>
 
 #include <cerrno>
 #include <cstring>
@@ -21,6 +22,12 @@ std::string OpenSslErrorsOrErrno() {
   const int system_error = errno;  // before anything below can change it
   const std::string out = OpenSslErrors();
   return out.empty() ? std::string(std::strerror(system_error)) : out;
+}
+
+std::string CertificateSubject(const X509* certificate) {
+  char name[256] = "?";
+  X509_NAME_oneline(X509_get_subject_name(certificate), name, sizeof name);
+  return name;
 }
 
 }  // namespace arref::tls

@@ -1,5 +1,8 @@
-// OpenSSL's error queue as text, for the messages of the server's and the clients' TLS code.
+// OpenSSL's errors and certificates as text, for the messages of the server's and the clients'
+// TLS code.
 #pragma once
+
+#include <openssl/types.h>
 
 #include <string>
 
@@ -11,5 +14,8 @@ std::string OpenSslErrors();
 // The same, but when OpenSSL queued nothing (a failed system call under it), the system's
 // error (errno) as text.
 std::string OpenSslErrorsOrErrno();
+
+// A certificate's subject as one line ("/CN=localhost"), "?" when it has none.
+std::string CertificateSubject(const X509* certificate);
 
 }  // namespace arref::tls

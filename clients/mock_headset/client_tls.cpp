@@ -16,6 +16,7 @@
 namespace arref::headset {
 namespace {
 
+using tls::CertificateSubject;
 using tls::OpenSslErrorsOrErrno;
 
 bool IsIpAddress(const std::string& host) {
@@ -95,12 +96,6 @@ std::string UtcText(const ASN1_TIME* time) {
   return ASN1_TIME_to_tm(time, &t) == 1 ? UtcText(t) : "?";
 }
 
-std::string Subject(X509* certificate) {
-  char name[256] = "?";
-  X509_NAME_oneline(X509_get_subject_name(certificate), name, sizeof name);
-  return name;
-}
-
 // For a certificate refused for its dates: which one the server sent, its validity and this
 // machine's clock (a clock set wrong is the usual cause of "not yet valid").
 std::string ValidityNote(SSL* ssl) {
@@ -112,7 +107,7 @@ std::string ValidityNote(SSL* ssl) {
     const std::time_t now = std::time(nullptr);
     std::tm now_utc{};
     gmtime_r(&now, &now_utc);
-    return fmt::format("; {} is valid from {} to {}, and this machine's clock says {}", Subject(c),
+    return fmt::format("; {} is valid from {} to {}, and this machine's clock says {}", CertificateSubject(c),
                        UtcText(X509_get0_notBefore(c)), UtcText(X509_get0_notAfter(c)), UtcText(now_utc));
   }
   return "";

@@ -513,8 +513,9 @@ TEST_F(Tls, TheCloseNotifyDeadlineClosesAConnectionThatCannotTakeIt) {
   ASSERT_TRUE(context.ok()) << context.status().ToString();
   net::io_context io;
   tcp::acceptor acceptor(io, tcp::endpoint(net::ip::address_v4::loopback(), 0));
-  std::unique_ptr<StrictTlsClient> client;
-  std::thread connecting([&] { client = std::make_unique<StrictTlsClient>(acceptor.local_endpoint().port(), pki_.ca); });
+  const std::uint16_t port = acceptor.local_endpoint().port();
+  std::unique_ptr<StrictTlsClient> client;  // its handshake blocks: in a thread while `io` answers it
+  std::thread connecting([&] { client = std::make_unique<StrictTlsClient>(port, pki_.ca); });
   server::Transport transport(acceptor.accept(), context->get());
   boost::system::error_code handshake = net::error::would_block;
   transport.AsyncHandshake([&](const boost::system::error_code& ec) { handshake = ec; });

@@ -22,6 +22,9 @@ namespace pb = wire::pb;
 constexpr std::size_t kReadChunk = 64 * 1024;
 constexpr double kJointMotionWhileMappingRad = 0.02;  // a joint moving more smears the arm's mesh
 constexpr auto kLinger = std::chrono::seconds(2);  // time to flush a final error before closing
+// Time to send TLS close_notify once the replies are out (kLinger + this < the server's
+// kFlushGrace at shutdown).
+constexpr auto kCloseNotifyDeadline = std::chrono::seconds(2);
 
 std::chrono::milliseconds Seconds(double s) { return std::chrono::milliseconds(static_cast<long long>(s * 1000)); }
 
@@ -71,8 +74,10 @@ void Session::StartTls() {
 void Session::OnTlsHandshake(const boost::system::error_code& ec) {
   if (state_ >= State::kClosing) return;
   if (ec) {
-    spdlog::warn("session {} ({}): TLS handshake failed: {}", id_, peer_, ec.message());
-    return CloseNow("TLS handshake failed: " + ec.message());
+    const std::string refused = transport_.PeerVerifyError();
+    const std::string why = ec.message() + (refused.empty() ? "" : " (the client's certificate: " + refused + ")");
+    spdlog::warn("session {} ({}): TLS handshake failed: {}", id_, peer_, why);
+    return CloseNow("TLS handshake failed: " + why);
   }
   handshaking_ = false;
   ReadMore();
@@ -139,6 +144,7 @@ void Session::UpdateFrameTimer(bool frame_completed) {
 void Session::ReadMore() {
   if (state_ >= State::kClosing) return;
   const auto space = rx_.Buffer(kReadChunk);
+  reading_ = true;
   transport_.AsyncReadSome(net::buffer(space.data(), space.size()),
                            [self = shared_from_this()](const boost::system::error_code& ec, std::size_t n) {
                              self->OnRead(ec, n);
@@ -146,7 +152,11 @@ void Session::ReadMore() {
 }
 
 void Session::OnRead(const boost::system::error_code& ec, std::size_t bytes) {
-  if (state_ >= State::kClosing) return;
+  reading_ = false;
+  if (state_ >= State::kClosing) {
+    if (finishing_) FinishClosing();
+    return;
+  }
   if (ec) return OnReadEnd(ec);
   try {
     rx_.Commit(bytes);
@@ -729,7 +739,7 @@ void Session::WriteNext() {
   if (state_ == State::kClosed) return;
   if (write_queue_.empty()) {
     writing_ = false;
-    if (state_ == State::kClosing) CloseNow(close_reason_);
+    if (state_ == State::kClosing) FinishClosing();
     return;
   }
   writing_ = true;
@@ -780,10 +790,23 @@ void Session::StartClosing(const std::string& reason) {
   hello_timer_.cancel();
   frame_timer_.cancel();
   transport_.ShutdownReceive();  // ends the pending read
-  if (!writing_) return CloseNow(reason);
+  if (!writing_) return FinishClosing();
   linger_timer_.expires_after(kLinger);
   linger_timer_.async_wait([self = shared_from_this()](const boost::system::error_code& ec) {
     if (!ec) self->CloseNow(self->close_reason_ + " (unsent replies dropped after linger)");
+  });
+}
+
+// Every reply written: the connection ends cleanly (TLS: close_notify, sent within
+// kCloseNotifyDeadline), then the session closes.
+void Session::FinishClosing() {
+  if (handshaking_) return CloseNow(close_reason_);  // no TLS session yet to close
+  finishing_ = true;
+  if (reading_ || transport_closing_) return;  // OnRead comes back here once the read has ended
+  transport_closing_ = true;
+  linger_timer_.cancel();
+  transport_.AsyncCloseNotify(kCloseNotifyDeadline, [self = shared_from_this()] {
+    self->CloseNow(self->close_reason_);
   });
 }
 

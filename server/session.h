@@ -135,6 +135,7 @@ class Session : public TrackingSink, public std::enable_shared_from_this<Session
   // Closing.
   void FailAndClose(wire::pb::ErrorCode code, const std::string& message);  // fatal error, then flush + close
   void StartClosing(const std::string& reason);
+  void FinishClosing();                       // after StartClosing, once every reply is written
   void CloseNow(const std::string& reason);  // drops unsent data
 
   Transport transport_;
@@ -155,6 +156,9 @@ class Session : public TrackingSink, public std::enable_shared_from_this<Session
   bool frame_timer_armed_ = false;
   MemoryBudget::Reservation frame_memory_;  // the large frame being received
   bool read_closed_ = false;                // the client half-closed: deliver results, then close
+  bool reading_ = false;                    // a read is pending on the transport
+  bool finishing_ = false;                  // FinishClosing called: every reply written
+  bool transport_closing_ = false;          // the transport's graceful close has begun
   net::steady_timer write_timer_;
   net::steady_timer linger_timer_;
 

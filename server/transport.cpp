@@ -11,21 +11,15 @@
 #include <filesystem>
 #include <fstream>
 
+#include "openssl_errors.h"
+
 namespace arref::server {
 namespace {
 
 namespace ssl = net::ssl;
 
-// OpenSSL's queued errors as one line ("" when none), emptying the queue.
-std::string OpenSslErrors() {
-  std::string out;
-  while (const unsigned long e = ERR_get_error()) {
-    char text[256];
-    ERR_error_string_n(e, text, sizeof text);
-    out += (out.empty() ? "" : "; ") + std::string(text);
-  }
-  return out;
-}
+using tls::CertificateSubject;
+using tls::OpenSslErrors;
 
 Status CheckReadable(const std::string& path, const std::string& key) {
   std::error_code ec;
@@ -86,10 +80,14 @@ Status RequireClientCertificates(ssl::context& context, const std::string& clien
   return Status::Ok();
 }
 
-std::string Subject(X509* certificate) {
-  char name[256] = "?";
-  X509_NAME_oneline(X509_get_subject_name(certificate), name, sizeof name);
-  return name;
+// Clients refuse a certificate outside its validity: said at startup rather than only in
+// each client's error.
+std::string ValidityWarning(X509* certificate) {
+  if (X509_cmp_current_time(X509_get0_notAfter(certificate)) < 0)
+    return "; the certificate HAS EXPIRED: clients will refuse it";
+  if (X509_cmp_current_time(X509_get0_notBefore(certificate)) > 0)
+    return "; the certificate is NOT YET VALID (or this machine's clock is wrong): clients will refuse it";
+  return "";
 }
 
 }  // namespace
@@ -107,9 +105,8 @@ Result<std::unique_ptr<TlsContext>> TlsContext::Load(const TlsConfig& config) {
   ARREF_RETURN_IF_ERROR(UseCertificateAndKey(context, config));
   if (!config.client_ca.empty()) ARREF_RETURN_IF_ERROR(RequireClientCertificates(context, config.client_ca));
   X509* certificate = SSL_CTX_get0_certificate(context.native_handle());
-  const bool expired = X509_cmp_current_time(X509_get0_notAfter(certificate)) < 0;
-  out->description_ = fmt::format("TLS 1.2+ with {} ({}){}{}", config.certificate_chain, Subject(certificate),
-                                  expired ? "; the certificate HAS EXPIRED: clients will refuse it" : "",
+  out->description_ = fmt::format("TLS 1.2+ with {} ({}){}{}", config.certificate_chain,
+                                  CertificateSubject(certificate), ValidityWarning(certificate),
                                   config.client_ca.empty() ? "" : "; client certificates signed by " + config.client_ca);
   return out;
 }
@@ -119,8 +116,9 @@ TlsContext::~TlsContext() = default;
 // ---------------------------------------------------------------- Transport
 
 struct Transport::Tls {
-  Tls(tcp::socket& socket, ssl::context& context) : stream(socket, context) {}
+  Tls(tcp::socket& socket, ssl::context& context) : stream(socket, context), shutdown_timer(socket.get_executor()) {}
   ssl::stream<tcp::socket&> stream;
+  net::steady_timer shutdown_timer;
 };
 
 Transport::Transport(tcp::socket socket, TlsContext* tls) : socket_(std::move(socket)) {
@@ -131,6 +129,12 @@ Transport::~Transport() = default;
 
 void Transport::AsyncHandshake(DoneHandler done) {
   tls_->stream.async_handshake(ssl::stream_base::server, std::move(done));
+}
+
+std::string Transport::PeerVerifyError() {
+  if (!tls_) return "";
+  const long verify = SSL_get_verify_result(tls_->stream.native_handle());
+  return verify == X509_V_OK ? "" : X509_verify_cert_error_string(verify);
 }
 
 void Transport::AsyncReadSome(net::mutable_buffer buffer, IoHandler done) {
@@ -150,6 +154,22 @@ void Transport::AsyncWrite(net::const_buffer buffer, IoHandler done) {
 void Transport::ShutdownReceive() {
   boost::system::error_code ignored;
   socket_.shutdown(tcp::socket::shutdown_receive, ignored);
+}
+
+void Transport::AsyncCloseNotify(std::chrono::milliseconds deadline, std::function<void()> done) {
+  if (!tls_) return done();
+  // At the deadline, Close, which ends the shutdown with an error. Both handlers share `done`
+  // (and what it holds, the session): neither outlives it.
+  auto finish = std::make_shared<std::function<void()>>(std::move(done));
+  tls_->shutdown_timer.expires_after(deadline);
+  tls_->shutdown_timer.async_wait([this, finish](const boost::system::error_code& ec) {
+    if (!ec) Close();
+  });
+  tls_->stream.async_shutdown([this, finish](const boost::system::error_code&) {
+    // An error is the client's (gone, or it cut its side) or the deadline's: nothing more to send.
+    tls_->shutdown_timer.cancel();
+    (*finish)();
+  });
 }
 
 void Transport::Close() {

@@ -8,6 +8,7 @@
 
 #include <boost/asio.hpp>
 
+#include <chrono>
 #include <functional>
 #include <memory>
 #include <string>
@@ -56,12 +57,23 @@ class Transport {
 
   // The server side of the TLS handshake; a plain transport has none (call only when encrypted).
   void AsyncHandshake(DoneHandler done);
+  // Why the client's certificate was refused (e.g. "certificate has expired"), after a failed
+  // handshake; "" when it was not (or there is no TLS).
+  std::string PeerVerifyError();
   void AsyncReadSome(net::mutable_buffer buffer, IoHandler done);
   void AsyncWrite(net::const_buffer buffer, IoHandler done);  // the whole buffer
   // Ends a pending read (the client gets no more of our attention); writes may still finish.
   void ShutdownReceive();
-  // Without TLS's close_notify: every message is length-prefixed, so a cut stream is told
-  // from a finished one by the framing, and closing never waits on the client.
+  // Before the Close of a connection the server ends on purpose, with no read or write pending
+  // (Asio's SSL stream takes no shutdown beside them; after ShutdownReceive a pending read ends
+  // at once): with TLS, sends close_notify, so that the client can tell a finished session from
+  // a cut connection. It waits for nothing from the client (TLS does not ask the closer to wait
+  // for the peer's close_notify, and the receive side is shut); `deadline` bounds the sending,
+  // and at the deadline the socket is closed, so a client that does not read cannot hold the
+  // connection. `done` runs then (at once without TLS); the caller then calls Close.
+  void AsyncCloseNotify(std::chrono::milliseconds deadline, std::function<void()> done);
+  // At once, without close_notify (a failed or dropped connection): the framing still tells a
+  // client that its stream was cut.
   void Close();
 
   // The client finished: end of file, or (TLS) the connection closed without close_notify.

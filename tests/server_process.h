@@ -33,6 +33,7 @@ struct ServerSettings {
   std::size_t max_sessions = 64;
   std::size_t max_send_queue_bytes = 8u << 20;
   double shutdown_grace_s = 60;
+  double idle_timeout_s = 300;
   std::size_t max_map_triangles = 1'000'000;
   std::size_t max_connections_per_peer = 256;  // every test client comes from 127.0.0.1
   std::string server_yaml, limits_yaml;  // more keys of those sections, each line "  key: value\n"
@@ -42,7 +43,7 @@ struct ServerSettings {
 inline std::string ConfigYaml(const ServerSettings& s) {
   std::ostringstream y;
   y << "server:\n  address: 127.0.0.1\n  port: 0\n  workers: " << s.workers << "\n  queue_size: " << s.queue_size
-    << "\n  shutdown_grace_s: " << s.shutdown_grace_s << "\n  idle_timeout_s: 300\n" << s.server_yaml
+    << "\n  shutdown_grace_s: " << s.shutdown_grace_s << "\n  idle_timeout_s: " << s.idle_timeout_s << "\n" << s.server_yaml
     << "limits:\n  max_sessions: " << s.max_sessions << "\n  max_send_queue_bytes: " << s.max_send_queue_bytes
     << "\n  max_connections_per_peer: " << s.max_connections_per_peer << "\n  max_map_triangles: " << s.max_map_triangles << "\n" << s.limits_yaml << s.sections_yaml << "robots:\n  - id: kr5\n    urdf: builtin\n";
   return y.str();

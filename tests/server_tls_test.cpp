@@ -3,22 +3,31 @@
 // executable) verifying it.
 #include <arpa/inet.h>
 #include <netinet/in.h>
+#include <openssl/ssl.h>
 #include <poll.h>
 #include <sys/socket.h>
+#include <sys/time.h>
 #include <unistd.h>
 
 #include <gtest/gtest.h>
 
+#include <cerrno>
 #include <chrono>
+#include <cstring>
+#include <filesystem>
 #include <fstream>
+#include <memory>
+#include <optional>
 #include <string>
 #include <thread>
 #include <tuple>
 #include <vector>
 
 #include "headset_client.h"
+#include "openssl_errors.h"
 #include "server_process.h"
 #include "test_support.h"
+#include "transport.h"
 
 namespace arref::headset {
 namespace {
@@ -28,6 +37,8 @@ using arref::testing::ScopedTempDir;
 using arref::testing::ServerProcess;
 using arref::testing::ServerSettings;
 using Clock = std::chrono::steady_clock;
+namespace net = boost::asio;
+using tcp = net::ip::tcp;
 
 const std::string kMockPath = ARREF_BINARY_DIR "/clients/mock_headset/arref-mock-headset";
 constexpr double kReplyTimeout = 120.0;  // only to avoid hanging
@@ -41,15 +52,30 @@ void Run(const std::string& command) {
 struct Pki {
   std::string ca, server_cert, server_key;
   std::string client_cert, client_key;  // for a server with tls.client_ca
+  std::string prefix;                   // of the CA's other files (key, extensions, openssl ca's database)
 };
+
+const std::string kEcKey = " -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes ";
+
+// `openssl ca` (unlike `openssl x509 -req`) sets any validity dates; it keeps a database of
+// what it signed, allowed to hold the same subject twice.
+void WriteCaDatabase(const std::string& d) {
+  std::ofstream(d + "_ca.cnf") << "[ca]\ndefault_ca = test\n[test]\ndatabase = " << d << "_ca_index.txt\n"
+                               << "new_certs_dir = " << std::filesystem::path(d).parent_path().string() << "\n"
+                               << "serial = " << d << "_ca_serial\ndefault_md = sha256\npolicy = any\n"
+                               << "unique_subject = no\n[any]\ncommonName = supplied\n";
+  std::ofstream(d + "_ca_index.txt");
+  std::ofstream(d + "_ca_serial") << "1000\n";
+}
 
 Pki MakePki(const std::string& dir, const std::string& name) {
   const std::string d = dir + "/" + name;
-  const std::string ec = " -newkey ec -pkeyopt ec_paramgen_curve:prime256v1 -nodes ";
-  Pki p{d + "_ca.pem", d + "_server.pem", d + "_server.key", d + "_client.pem", d + "_client.key"};
+  const std::string& ec = kEcKey;
+  Pki p{d + "_ca.pem", d + "_server.pem", d + "_server.key", d + "_client.pem", d + "_client.key", d};
   std::ofstream(d + "_ext.cnf") << "subjectAltName=DNS:localhost,IP:127.0.0.1\nbasicConstraints=CA:FALSE\n"
                                    "extendedKeyUsage=serverAuth\n";
   std::ofstream(d + "_client_ext.cnf") << "basicConstraints=CA:FALSE\nextendedKeyUsage=clientAuth\n";
+  WriteCaDatabase(d);
   Run("openssl req -x509" + ec + "-keyout " + d + "_ca.key -out " + p.ca + " -days 2 -subj '/CN=arref test CA " + name +
       "'");
   Run("openssl req" + ec + "-keyout " + p.server_key + " -out " + d + "_server.csr -subj /CN=localhost");
@@ -59,6 +85,29 @@ Pki MakePki(const std::string& dir, const std::string& name) {
   Run("openssl x509 -req -in " + d + "_client.csr -CA " + p.ca + " -CAkey " + d + "_ca.key -CAcreateserial -out " +
       p.client_cert + " -days 2 -extfile " + d + "_client_ext.cnf");
   return p;
+}
+
+// Validity dates as `openssl ca` takes them: long past, and far ahead.
+struct Dates {
+  std::string start, end;
+};
+const Dates kExpired{"20200101000000Z", "20200102000000Z"};
+const Dates kNotYetValid{"20990101000000Z", "20991231000000Z"};
+
+struct Issued {
+  std::string cert, key;
+};
+
+// A certificate from pki's CA valid only within `dates`: the server's (localhost, 127.0.0.1)
+// or, `client`, a headset's.
+Issued IssueWithDates(const Pki& pki, const std::string& name, bool client, const Dates& dates) {
+  const std::string d = pki.prefix + "_" + name;
+  Run("openssl req" + kEcKey + "-keyout " + d + ".key -out " + d + ".csr -subj /CN=" +
+      (client ? "headset-1" : "localhost"));
+  Run("openssl ca -batch -notext -config " + pki.prefix + "_ca.cnf -cert " + pki.ca + " -keyfile " + pki.prefix +
+      "_ca.key -in " + d + ".csr -out " + d + ".pem -startdate " + dates.start + " -enddate " + dates.end +
+      " -extfile " + pki.prefix + (client ? "_client_ext.cnf" : "_ext.cnf"));
+  return {d + ".pem", d + ".key"};
 }
 
 std::string TlsYaml(const std::string& cert, const std::string& key) {
@@ -148,6 +197,91 @@ TEST_F(Tls, AClientTrustingAnotherCaFailsAndTheServerKeepsServing) {
   ExpectHelloWorks(server);
 }
 
+// True once the server's log holds `text` (it is written as the server goes), false after timeout_s.
+bool LogShows(const ServerProcess& server, const std::string& text, double timeout_s = 10) {
+  const auto deadline = Clock::now() + std::chrono::duration<double>(timeout_s);
+  while (server.Log().find(text) == std::string::npos) {
+    if (Clock::now() > deadline) return false;
+    std::this_thread::sleep_for(std::chrono::milliseconds(50));
+  }
+  return true;
+}
+
+// A server certificate outside its dates: the server warns at startup, and the client refuses
+// it with the reason, the certificate's dates and its own clock (a wrong clock is the usual
+// cause of "not yet valid"); the server keeps serving.
+TEST_F(Tls, AClientRefusesAServerCertificateOutsideItsDatesSayingWhy) {
+  struct Case {
+    std::string name;
+    Dates dates;
+    std::string reason, shown_dates, startup_warning;
+  };
+  const std::vector<Case> cases{
+      {"expired", kExpired, "certificate has expired", "valid from 2020-01-01 00:00:00 UTC to 2020-01-02 00:00:00 UTC",
+       "the certificate HAS EXPIRED"},
+      {"not_yet_valid", kNotYetValid, "certificate is not yet valid",
+       "valid from 2099-01-01 00:00:00 UTC to 2099-12-31 00:00:00 UTC", "the certificate is NOT YET VALID"}};
+  for (const Case& c : cases) {
+    SCOPED_TRACE(c.name);
+    const Issued issued = IssueWithDates(pki_, c.name, false, c.dates);
+    ServerSettings s;
+    s.sections_yaml = TlsYaml(issued.cert, issued.key);
+    ServerProcess server(s);
+    EXPECT_TRUE(LogShows(server, c.startup_warning)) << server.Log();
+    auto conn = Connection::Connect("127.0.0.1", server.port(), 10, 0, Trusting(pki_.ca));
+    ASSERT_FALSE(conn.ok()) << "connected to a server whose certificate is " << c.name;
+    const std::string message = conn.status().message();
+    EXPECT_NE(message.find("the server's certificate did not verify: " + c.reason), std::string::npos) << message;
+    EXPECT_NE(message.find("/CN=localhost is " + c.shown_dates), std::string::npos) << message;
+    EXPECT_NE(message.find("this machine's clock says 20"), std::string::npos) << message;
+    EXPECT_TRUE(LogShows(server, "TLS handshake failed")) << server.Log();
+    EXPECT_TRUE(server.alive());
+  }
+}
+
+// The mock headset's command line says it as well, and fails.
+TEST_F(Tls, TheMockHeadsetRefusesAnExpiredServerCertificate) {
+  const Issued expired = IssueWithDates(pki_, "expired", false, kExpired);
+  ServerSettings s;
+  s.sections_yaml = TlsYaml(expired.cert, expired.key);
+  ServerProcess server(s);
+  const auto run = RunCommand(kMockPath + " --port " + std::to_string(server.port()) + " --tls-ca " + pki_.ca +
+                              " --batches 1 --timeout 60 --rng-seed 1");
+  EXPECT_NE(run.exit_code, 0);
+  EXPECT_NE(run.out.find("did not verify: certificate has expired"), std::string::npos) << run.out << run.err;
+}
+
+// tls.client_ca: a client certificate its CA signed but expired is refused, the server's log
+// says why, and the server goes on serving headsets with valid certificates.
+TEST_F(Tls, AnExpiredClientCertificateIsRefusedAndTheServerKeepsServing) {
+  ServerSettings s = Settings();
+  s.sections_yaml += "  client_ca: " + pki_.ca + "\n";
+  ServerProcess server(s);
+  const Issued expired = IssueWithDates(pki_, "expired_client", true, kExpired);
+  TlsClientOptions o = Trusting(pki_.ca);
+  o.certificate = expired.cert;
+  o.private_key = expired.key;
+  // TLS 1.3: the client's side of the handshake ends before the server checks the certificate,
+  // so the server's alert shows at the connect or at the first read.
+  std::string refusal;
+  auto conn = Connection::Connect("127.0.0.1", server.port(), 10, 0, o);
+  if (conn.ok()) {
+    (void)conn->Send(Hello());
+    const auto reply = conn->Receive(30);
+    ASSERT_FALSE(reply.ok()) << "an expired client certificate was let in";
+    refusal = reply.status().message();
+  } else {
+    refusal = conn.status().message();
+  }
+  EXPECT_NE(refusal.find("certificate expired"), std::string::npos) << refusal;  // the server's alert
+  EXPECT_TRUE(LogShows(server, "(the client's certificate: certificate has expired)")) << server.Log();
+  EXPECT_TRUE(server.alive());
+  TlsClientOptions valid = Trusting(pki_.ca);
+  valid.certificate = pki_.client_cert;
+  valid.private_key = pki_.client_key;
+  ExpectHelloWorks(server, valid);
+}
+
 TEST_F(Tls, APlaintextClientIsClosedAndTheServerKeepsServing) {
   ServerProcess server(Settings());
   auto plain = Connection::Connect("127.0.0.1", server.port(), 10);
@@ -219,6 +353,195 @@ TEST_F(Tls, StalledHandshakesCountAsPendingAndCannotLockHeadsetsOut) {
   EXPECT_GE(first_s, 0) << server.Log();
   ExpectHelloWorks(server);
   for (int fd : stalled) close(fd);
+}
+
+// ---------------------------------------------------------------- close_notify
+
+// A TLS client on OpenSSL itself, strict where the mock headset is lenient (that takes a cut
+// connection as an end of stream too): it tells the server's close_notify from a cut stream.
+class StrictTlsClient {
+ public:
+  StrictTlsClient(std::uint16_t port, const std::string& ca) : fd_(StalledConnection(port, false)) {
+    context_ = SSL_CTX_new(TLS_client_method());
+    SSL_CTX_set_verify(context_, SSL_VERIFY_PEER, nullptr);
+    if (SSL_CTX_load_verify_locations(context_, ca.c_str(), nullptr) != 1) ended_ = "CA: " + tls::OpenSslErrors();
+    ssl_ = SSL_new(context_);
+    SSL_set_fd(ssl_, fd_);
+    const timeval timeout{30, 0};  // bounds every read below
+    setsockopt(fd_, SOL_SOCKET, SO_RCVTIMEO, &timeout, sizeof timeout);
+    if (ended_.empty() && SSL_connect(ssl_) != 1) ended_ = "handshake: " + tls::OpenSslErrors();
+  }
+  ~StrictTlsClient() {
+    SSL_free(ssl_);
+    SSL_CTX_free(context_);
+    close(fd_);
+  }
+  StrictTlsClient(const StrictTlsClient&) = delete;
+  StrictTlsClient& operator=(const StrictTlsClient&) = delete;
+
+  bool connected() const { return ended_.empty(); }
+  int fd() const { return fd_; }
+  // How the stream ended: "close_notify", "cut: <OpenSSL's error>", "timeout", ... ("" while open).
+  const std::string& ended() const { return ended_; }
+
+  bool Send(const pb::ClientMessage& message) {
+    const std::string frame = wire::EncodeFrame(message);
+    std::size_t n = 0;
+    return SSL_write_ex(ssl_, frame.data(), frame.size(), &n) == 1 && n == frame.size();
+  }
+
+  // The next message, or nullopt once the stream has ended (ended() says how).
+  std::optional<pb::ServerMessage> Next() {
+    while (ended_.empty()) {
+      if (auto message = TakeFrame()) return message;
+      char buf[16384];
+      std::size_t n = 0;
+      if (SSL_read_ex(ssl_, buf, sizeof buf, &n) == 1) {
+        rx_.append(buf, n);
+        continue;
+      }
+      ended_ = HowItEnded(SSL_get_error(ssl_, 0));
+    }
+    return std::nullopt;
+  }
+
+  // Every message until the end of the stream.
+  std::vector<pb::ServerMessage> ReadToEnd() {
+    std::vector<pb::ServerMessage> out;
+    while (auto message = Next()) out.push_back(*message);
+    return out;
+  }
+
+ private:
+  std::optional<pb::ServerMessage> TakeFrame() {
+    const auto* data = reinterpret_cast<const std::uint8_t*>(rx_.data());
+    const auto h = wire::DecodeFrameHeader(data, rx_.size(), 64u << 20);
+    if (h.state != wire::FrameHeader::State::kComplete || rx_.size() < h.header_bytes + h.body_bytes)
+      return std::nullopt;
+    pb::ServerMessage message;
+    EXPECT_TRUE(message.ParseFromArray(data + h.header_bytes, static_cast<int>(h.body_bytes)));
+    rx_.erase(0, h.header_bytes + h.body_bytes);
+    return message;
+  }
+
+  std::string HowItEnded(int error) {
+    const int system_error = errno;
+    if (error == SSL_ERROR_ZERO_RETURN) return "close_notify";
+    if (error == SSL_ERROR_WANT_READ || (error == SSL_ERROR_SYSCALL && system_error == EAGAIN)) return "timeout";
+    const std::string queued = tls::OpenSslErrors();  // "unexpected eof while reading": cut
+    return "cut: " + (queued.empty() ? std::string(std::strerror(system_error)) : queued);
+  }
+
+  int fd_;
+  SSL_CTX* context_ = nullptr;
+  SSL* ssl_ = nullptr;
+  std::string ended_;
+  std::string rx_;
+};
+
+// The server ends a session (a fatal error; the idle timeout) with TLS close_notify: a strict
+// client reads the last Error, then a clean end of stream (SSL_ERROR_ZERO_RETURN), not a cut.
+TEST_F(Tls, TheServerEndsASessionWithCloseNotify) {
+  ServerSettings s = Settings();
+  s.idle_timeout_s = 1;
+  ServerProcess server(s);
+  {
+    SCOPED_TRACE("a fatal error: Ping before Hello");
+    StrictTlsClient client(server.port(), pki_.ca);
+    ASSERT_TRUE(client.connected()) << client.ended();
+    pb::ClientMessage ping;
+    ping.mutable_ping()->set_nonce(1);
+    ASSERT_TRUE(client.Send(ping));
+    const auto messages = client.ReadToEnd();
+    EXPECT_EQ(client.ended(), "close_notify");
+    ASSERT_EQ(messages.size(), 1u);
+    EXPECT_EQ(messages[0].error().code(), pb::ERROR_CODE_NOT_READY);
+  }
+  {
+    SCOPED_TRACE("the idle timeout");
+    StrictTlsClient client(server.port(), pki_.ca);
+    ASSERT_TRUE(client.connected()) << client.ended();
+    ASSERT_TRUE(client.Send(Hello()));
+    const auto messages = client.ReadToEnd();
+    EXPECT_EQ(client.ended(), "close_notify");
+    ASSERT_EQ(messages.size(), 2u);
+    EXPECT_TRUE(messages[0].has_hello_reply());
+    EXPECT_EQ(messages[1].error().code(), pb::ERROR_CODE_IDLE_TIMEOUT);
+  }
+  EXPECT_TRUE(server.alive());
+}
+
+// SIGTERM: every session gets ServerShutdown, then close_notify, and the server exits 0.
+TEST_F(Tls, AServerShuttingDownEndsSessionsWithCloseNotify) {
+  ServerProcess server(Settings());
+  StrictTlsClient client(server.port(), pki_.ca);
+  ASSERT_TRUE(client.connected()) << client.ended();
+  ASSERT_TRUE(client.Send(Hello()));
+  const auto reply = client.Next();  // the session is ready before the signal
+  ASSERT_TRUE(reply && reply->has_hello_reply()) << client.ended();
+  EXPECT_EQ(server.SignalAndWait(SIGTERM, 60), 0);
+  const auto messages = client.ReadToEnd();  // what the server sent before it exited
+  EXPECT_EQ(client.ended(), "close_notify");
+  ASSERT_FALSE(messages.empty());
+  EXPECT_TRUE(messages.back().has_shutdown());
+}
+
+// A client that neither reads nor answers once the server ends its session does not hold the
+// connection: the server closes it within the idle timeout and the close_notify deadline
+// (2 s) without it, and serves others.
+TEST_F(Tls, AClientThatNeverAnswersTheCloseIsClosedWithinTheDeadline) {
+  ServerSettings s = Settings();
+  s.idle_timeout_s = 1;
+  ServerProcess server(s);
+  StrictTlsClient client(server.port(), pki_.ca);
+  ASSERT_TRUE(client.connected()) << client.ended();
+  ASSERT_TRUE(client.Send(Hello()));
+  const auto reply = client.Next();
+  ASSERT_TRUE(reply && reply->has_hello_reply()) << client.ended();
+  const auto silent_since = Clock::now();  // from here the client touches nothing
+  ASSERT_TRUE(LogShows(server, "closed: ERROR_CODE_IDLE_TIMEOUT", 30)) << server.Log();
+  EXPECT_LT(std::chrono::duration<double>(Clock::now() - silent_since).count(), 1 + 2 + 10) << server.Log();
+  // The socket is closed: its bytes (the Error, the close_notify) end in end of file.
+  EXPECT_GE(SecondsUntilClosed(client.fd(), 5), 0);
+  ExpectHelloWorks(server);
+}
+
+// The deadline itself, on the server's Transport in this process: a client whose receive
+// window is full cannot take the close_notify, and the connection is closed at the deadline.
+TEST_F(Tls, TheCloseNotifyDeadlineClosesAConnectionThatCannotTakeIt) {
+  auto context = server::TlsContext::Load({.certificate_chain = pki_.server_cert, .private_key = pki_.server_key});
+  ASSERT_TRUE(context.ok()) << context.status().ToString();
+  net::io_context io;
+  tcp::acceptor acceptor(io, tcp::endpoint(net::ip::address_v4::loopback(), 0));
+  const std::uint16_t port = acceptor.local_endpoint().port();
+  std::unique_ptr<StrictTlsClient> client;  // its handshake blocks: in a thread while `io` answers it
+  std::thread connecting([&] { client = std::make_unique<StrictTlsClient>(port, pki_.ca); });
+  server::Transport transport(acceptor.accept(), context->get());
+  boost::system::error_code handshake = net::error::would_block;
+  transport.AsyncHandshake([&](const boost::system::error_code& ec) { handshake = ec; });
+  io.run();
+  connecting.join();
+  ASSERT_FALSE(handshake) << handshake.message();
+  ASSERT_TRUE(client->connected()) << client->ended();
+
+  // Fill the send buffer and the client's window (raw bytes under TLS: the client reads none).
+  const int fd = transport.socket().native_handle();
+  const std::string junk(65536, 'x');
+  while (send(fd, junk.data(), junk.size(), MSG_DONTWAIT | MSG_NOSIGNAL) > 0) {
+  }
+  ASSERT_TRUE(errno == EAGAIN || errno == EWOULDBLOCK) << std::strerror(errno);
+
+  const auto deadline = std::chrono::milliseconds(300);
+  const auto start = Clock::now();
+  bool done = false;
+  transport.AsyncCloseNotify(deadline, [&] { done = true; });
+  io.restart();
+  io.run_for(std::chrono::seconds(20));
+  const double seconds = std::chrono::duration<double>(Clock::now() - start).count();
+  EXPECT_TRUE(done);
+  EXPECT_FALSE(transport.socket().is_open()) << "the deadline closes the socket";
+  EXPECT_GE(seconds, 0.3) << "closed before the deadline: the close_notify was sent after all?";
+  EXPECT_LT(seconds, 10);
 }
 
 // tls.client_ca: only clients holding a certificate that CA signed get a session.

@@ -8,21 +8,16 @@
 
 #include <cerrno>
 #include <csignal>
-#include <cstring>
+#include <ctime>
 #include <mutex>
+
+#include "openssl_errors.h"
 
 namespace arref::headset {
 namespace {
 
-std::string OpenSslErrors() {
-  std::string out;
-  while (const unsigned long e = ERR_get_error()) {
-    char text[256];
-    ERR_error_string_n(e, text, sizeof text);
-    out += (out.empty() ? "" : "; ") + std::string(text);
-  }
-  return out.empty() ? std::string(std::strerror(errno)) : out;
-}
+using tls::CertificateSubject;
+using tls::OpenSslErrorsOrErrno;
 
 bool IsIpAddress(const std::string& host) {
   unsigned char buf[sizeof(in6_addr)];
@@ -54,21 +49,23 @@ namespace {
 Status ConfigureContext(SSL_CTX* context, const TlsClientOptions& o) {
   SSL_CTX_set_min_proto_version(context, TLS1_2_VERSION);
   SSL_CTX_set_verify(context, SSL_VERIFY_PEER, nullptr);
-  // The server closes without close_notify (the framing tells a cut stream): that is an end of
-  // stream, not an error.
+  // The server ends a session with close_notify, but cuts a connection it drops (a stalled
+  // client) without one; the framing tells a cut stream, so that is an end of stream too.
   SSL_CTX_set_options(context, SSL_OP_IGNORE_UNEXPECTED_EOF);
   const bool loaded = o.ca_file.empty() ? SSL_CTX_set_default_verify_paths(context) == 1
                                         : SSL_CTX_load_verify_locations(context, o.ca_file.c_str(), nullptr) == 1;
   if (!loaded)
     return Status::InvalidArgument(fmt::format("TLS CA {}: cannot be loaded: {}",
-                                               o.ca_file.empty() ? "(the system's)" : o.ca_file, OpenSslErrors()));
+                                               o.ca_file.empty() ? "(the system's)" : o.ca_file,
+                                               OpenSslErrorsOrErrno()));
   if (o.certificate.empty() != o.private_key.empty())
     return Status::InvalidArgument("a TLS client certificate and its key go together (one is missing)");
   if (!o.certificate.empty()) {
     if (SSL_CTX_use_certificate_chain_file(context, o.certificate.c_str()) != 1)
-      return Status::InvalidArgument(fmt::format("TLS client certificate {}: {}", o.certificate, OpenSslErrors()));
+      return Status::InvalidArgument(
+          fmt::format("TLS client certificate {}: {}", o.certificate, OpenSslErrorsOrErrno()));
     if (SSL_CTX_use_PrivateKey_file(context, o.private_key.c_str(), SSL_FILETYPE_PEM) != 1)
-      return Status::InvalidArgument(fmt::format("TLS client key {}: {}", o.private_key, OpenSslErrors()));
+      return Status::InvalidArgument(fmt::format("TLS client key {}: {}", o.private_key, OpenSslErrorsOrErrno()));
   }
   return Status::Ok();
 }
@@ -89,12 +86,40 @@ Status ExpectName(SSL* ssl, const std::string& name) {
   return Status::Ok();
 }
 
+std::string UtcText(const std::tm& t) {
+  char text[32];
+  return std::strftime(text, sizeof text, "%Y-%m-%d %H:%M:%S UTC", &t) > 0 ? text : "?";
+}
+
+std::string UtcText(const ASN1_TIME* time) {
+  std::tm t{};
+  return ASN1_TIME_to_tm(time, &t) == 1 ? UtcText(t) : "?";
+}
+
+// For a certificate refused for its dates: which one the server sent, its validity and this
+// machine's clock (a clock set wrong is the usual cause of "not yet valid").
+std::string ValidityNote(SSL* ssl) {
+  STACK_OF(X509)* chain = SSL_get_peer_cert_chain(ssl);
+  for (int i = 0; chain != nullptr && i < sk_X509_num(chain); ++i) {
+    X509* c = sk_X509_value(chain, i);
+    if (X509_cmp_current_time(X509_get0_notBefore(c)) <= 0 && X509_cmp_current_time(X509_get0_notAfter(c)) >= 0)
+      continue;
+    const std::time_t now = std::time(nullptr);
+    std::tm now_utc{};
+    gmtime_r(&now, &now_utc);
+    return fmt::format("; {} is valid from {} to {}, and this machine's clock says {}", CertificateSubject(c),
+                       UtcText(X509_get0_notBefore(c)), UtcText(X509_get0_notAfter(c)), UtcText(now_utc));
+  }
+  return "";
+}
+
 std::string HandshakeFailure(SSL* ssl, const TlsClientOptions& o, const std::string& name) {
   const long verify = SSL_get_verify_result(ssl);
-  if (verify != X509_V_OK)
-    return fmt::format("the server's certificate did not verify: {} (trusted: {}; expected name: {})",
-                       X509_verify_cert_error_string(verify), o.ca_file.empty() ? "the system's CAs" : o.ca_file, name);
-  return OpenSslErrors();
+  if (verify == X509_V_OK) return OpenSslErrorsOrErrno();
+  const bool dates = verify == X509_V_ERR_CERT_HAS_EXPIRED || verify == X509_V_ERR_CERT_NOT_YET_VALID;
+  return fmt::format("the server's certificate did not verify: {} (trusted: {}; expected name: {}{})",
+                     X509_verify_cert_error_string(verify), o.ca_file.empty() ? "the system's CAs" : o.ca_file, name,
+                     dates ? ValidityNote(ssl) : "");
 }
 
 }  // namespace
@@ -107,10 +132,10 @@ Result<std::unique_ptr<ClientTls>> ClientTls::Handshake(int fd, const std::strin
   ERR_clear_error();
   auto state = std::make_unique<State>();
   state->context = SSL_CTX_new(TLS_client_method());
-  if (!state->context) return Status::Internal("TLS: " + OpenSslErrors());
+  if (!state->context) return Status::Internal("TLS: " + OpenSslErrorsOrErrno());
   ARREF_RETURN_IF_ERROR(ConfigureContext(state->context, o));
   state->ssl = SSL_new(state->context);
-  if (!state->ssl || SSL_set_fd(state->ssl, fd) != 1) return Status::Internal("TLS: " + OpenSslErrors());
+  if (!state->ssl || SSL_set_fd(state->ssl, fd) != 1) return Status::Internal("TLS: " + OpenSslErrorsOrErrno());
   const std::string name = o.server_name.empty() ? host : o.server_name;
   ARREF_RETURN_IF_ERROR(ExpectName(state->ssl, name));
   if (SSL_connect(state->ssl) != 1)
@@ -123,7 +148,7 @@ Status ClientTls::Write(const char* data, std::size_t size) {
   while (sent < size) {
     std::size_t n = 0;
     if (SSL_write_ex(state_->ssl, data + sent, size - sent, &n) != 1)
-      return Unavailable("sending over TLS: " + OpenSslErrors());
+      return Unavailable("sending over TLS: " + OpenSslErrorsOrErrno());
     sent += n;
   }
   return Status::Ok();
@@ -139,7 +164,7 @@ Result<std::size_t> ClientTls::Read(char* data, std::size_t size) {
       if (errno == EAGAIN || errno == EWOULDBLOCK)
         return Status::ResourceExhausted("no reply within the socket's timeout");
       [[fallthrough]];
-    default: return Unavailable("receiving over TLS: " + OpenSslErrors());
+    default: return Unavailable("receiving over TLS: " + OpenSslErrorsOrErrno());
   }
 }
 

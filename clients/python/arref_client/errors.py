@@ -17,7 +17,8 @@ class TlsError(ConnectionClosed):
 
 class TlsVerificationFailed(TlsError):
     """The server's certificate did not verify: not signed by the trusted CA, not naming the host,
-    or expired."""
+    expired or not yet valid; the message says which (OpenSSL's reason, e.g. "certificate has
+    expired")."""
 
 
 class Timeout(ArrefError):

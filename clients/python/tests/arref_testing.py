@@ -106,12 +106,32 @@ class Pki:
         with open(path("ext.cnf"), "w") as f:
             f.write("subjectAltName=DNS:localhost,IP:127.0.0.1\nbasicConstraints=CA:FALSE\n"
                     "extendedKeyUsage=serverAuth\n")
+        self._path = path
         run = lambda *a: subprocess.run(["openssl", *a], check=True, capture_output=True)  # noqa: E731
         run("req", "-x509", *ec, "-keyout", path("ca.key"), "-out", self.ca, "-days", "2", "-subj",
             f"/CN=arref test CA {name}")
         run("req", *ec, "-keyout", self.key, "-out", path("server.csr"), "-subj", "/CN=localhost")
         run("x509", "-req", "-in", path("server.csr"), "-CA", self.ca, "-CAkey", path("ca.key"), "-CAcreateserial",
             "-out", self.cert, "-days", "2", "-extfile", path("ext.cnf"))
+        # `openssl ca` (unlike `x509 -req`) sets any validity dates: its database, for issue().
+        with open(path("ca.cnf"), "w") as f:
+            f.write(f"[ca]\ndefault_ca = test\n[test]\ndatabase = {path('ca_index.txt')}\nnew_certs_dir = {folder}\n"
+                    f"serial = {path('ca_serial')}\ndefault_md = sha256\npolicy = any\nunique_subject = no\n"
+                    "[any]\ncommonName = supplied\n")
+        open(path("ca_index.txt"), "w").close()
+        with open(path("ca_serial"), "w") as f:
+            f.write("1000\n")
+        self._ec, self._run = ec, run
+
+    def issue(self, name, start, end):
+        """A server certificate (localhost, 127.0.0.1) from this CA valid only from start to end
+        (YYYYMMDDHHMMSSZ): expired or not yet valid. Returns the server config's tls section."""
+        cert, key, csr = self._path(f"{name}.pem"), self._path(f"{name}.key"), self._path(f"{name}.csr")
+        self._run("req", *self._ec, "-keyout", key, "-out", csr, "-subj", "/CN=localhost")
+        self._run("ca", "-batch", "-notext", "-config", self._path("ca.cnf"), "-cert", self.ca, "-keyfile",
+                  self._path("ca.key"), "-in", csr, "-out", cert, "-startdate", start, "-enddate", end, "-extfile",
+                  self._path("ext.cnf"))
+        return {"certificate_chain": cert, "private_key": key}
 
     @property
     def server_tls(self):

@@ -47,6 +47,21 @@ def test_another_ca_raises_the_typed_error_and_the_server_keeps_serving(tls_serv
     assert "TLS handshake failed" in tls_server.log()
 
 
+@pytest.mark.parametrize("name,start,end,why", [
+    ("expired", "20200101000000Z", "20200102000000Z", "certificate has expired"),
+    ("not_yet_valid", "20990101000000Z", "20991231000000Z", "certificate is not yet valid"),
+])
+def test_a_server_certificate_outside_its_dates_raises_the_typed_error_saying_why(tmp_path, pki, name, start, end,
+                                                                                  why):
+    s = ServerProcess(tmp_path, tls=pki.issue(name, start, end))
+    try:
+        with pytest.raises(errors.TlsVerificationFailed, match=f"did not verify for 127.0.0.1: {why}"):
+            Client("127.0.0.1", s.port, tls_ca=pki.ca)
+        assert s.proc.poll() is None
+    finally:
+        s.stop()
+
+
 def test_plaintext_and_tls_do_not_mix(tls_server, server, pki):
     with pytest.raises(errors.ConnectionClosed):  # the TLS server closes a plaintext Hello
         Client("127.0.0.1", tls_server.port, timeout=30)

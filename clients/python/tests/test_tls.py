@@ -1,6 +1,7 @@
 """The Python client over TLS against the real arref-server, with a throwaway CA made here."""
 
 import json
+import ssl
 
 import pytest
 
@@ -86,3 +87,25 @@ def test_tracking_over_tls_reads_every_update(tls_server, pki, track_stream):
     assert not out.errors, [str(e) for e in out.errors]
     assert out.updates
     assert len(out.updates) + out.frames_dropped == out.frames_sent
+
+
+def test_a_server_shutting_down_ends_the_tls_session_cleanly(tmp_path, pki):
+    # close_notify after the last message: ssl then reads a clean end (b""). A strict context
+    # (OpenSSL's default; Python may set OP_IGNORE_UNEXPECTED_EOF) raises SSLEOFError on a cut
+    # connection instead ("receiving failed: ... EOF occurred in violation of protocol").
+    strict = tls_context(pki.ca)
+    strict.options &= ~getattr(ssl, "OP_IGNORE_UNEXPECTED_EOF", 0)
+    s = ServerProcess(tmp_path, tls=pki.server_tls)
+    try:
+        with Client("127.0.0.1", s.port, ssl_context=strict) as c:
+            c.ping()
+            s.proc.terminate()
+            kinds = []
+            with pytest.raises(errors.ConnectionClosed) as closed:
+                while True:
+                    kinds.append(c.receive(timeout=30).WhichOneof("kind"))
+            assert "the server closed the connection" in str(closed.value), str(closed.value)
+            assert "shutdown" in kinds, kinds
+        assert s.proc.wait(timeout=60) == 0
+    finally:
+        s.stop()

@@ -3,6 +3,7 @@
 #include <spdlog/spdlog.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <functional>
@@ -531,9 +532,14 @@ const char* SeedFamilyName(SeedFamily family) {
 }
 
 Result<SeedFamily> ParseSeedFamily(const std::string& name) {
-  for (SeedFamily f : {SeedFamily::kDefault, SeedFamily::kUser, SeedFamily::kCube, SeedFamily::kAnyYaw, SeedFamily::kTruth})
+  constexpr std::array kAll = {SeedFamily::kDefault, SeedFamily::kUser, SeedFamily::kCube, SeedFamily::kAnyYaw,
+                               SeedFamily::kTruth};
+  std::string known;
+  for (SeedFamily f : kAll) {
     if (name == SeedFamilyName(f)) return f;
-  return Status::InvalidArgument("unknown seed family '" + name + "' (default, user, cube, any-yaw)");
+    known += (known.empty() ? "" : ", ") + std::string(SeedFamilyName(f));
+  }
+  return Status::InvalidArgument("unknown seed family '" + name + "' (" + known + ")");
 }
 
 void SetPoseJitter(ScanOptions* scan, double sigma_m) {
@@ -609,13 +615,13 @@ Result<SimulatedCell> SimulateCell(const RobotModel& robot, const SimOptions& re
 }
 
 std::vector<Iso3> DrawSeeds(const Iso3& T_world_base, const SeedNoise& noise, int count, std::mt19937_64& rng) {
+  if (noise.family == SeedFamily::kTruth) return std::vector<Iso3>(static_cast<std::size_t>(std::max(count, 0)), T_world_base);
   std::normal_distribution<double> horizontal(0.0, noise.horizontal_sigma_m), yaw_error(0.0, noise.yaw_sigma_deg * kDeg);
   std::uniform_real_distribution<double> vertical(0.0, noise.vertical_max_m);
   const Vec3 base = T_world_base.translation();
   const double yaw = YawOf(T_world_base);
   std::vector<Iso3> seeds;
   std::uniform_real_distribution<double> unit(0.0, 1.0);
-  if (noise.family == SeedFamily::kTruth) return std::vector<Iso3>(static_cast<std::size_t>(std::max(count, 0)), T_world_base);
   if (noise.family != SeedFamily::kDefault) {
     std::normal_distribution<double> user_yaw(0.0, 15.0 * kDeg);
     for (int i = 0; i < count; ++i) {

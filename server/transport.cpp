@@ -82,11 +82,13 @@ Status RequireClientCertificates(ssl::context& context, const std::string& clien
 
 // Clients refuse a certificate outside its validity: said at startup rather than only in
 // each client's error.
-std::string ValidityWarning(X509* certificate) {
-  if (X509_cmp_current_time(X509_get0_notAfter(certificate)) < 0)
-    return "; the certificate HAS EXPIRED: clients will refuse it";
-  if (X509_cmp_current_time(X509_get0_notBefore(certificate)) > 0)
-    return "; the certificate is NOT YET VALID (or this machine's clock is wrong): clients will refuse it";
+std::string ValidityWarning(const X509* certificate) {
+  switch (tls::DatesOf(certificate)) {
+    case tls::CertificateDates::kExpired: return "; the certificate HAS EXPIRED: clients will refuse it";
+    case tls::CertificateDates::kNotYetValid:
+      return "; the certificate is NOT YET VALID (or this machine's clock is wrong): clients will refuse it";
+    case tls::CertificateDates::kValid: break;
+  }
   return "";
 }
 

@@ -30,4 +30,10 @@ std::string CertificateSubject(const X509* certificate) {
   return name;
 }
 
+CertificateDates DatesOf(const X509* certificate) {
+  if (X509_cmp_current_time(X509_get0_notAfter(certificate)) < 0) return CertificateDates::kExpired;
+  if (X509_cmp_current_time(X509_get0_notBefore(certificate)) > 0) return CertificateDates::kNotYetValid;
+  return CertificateDates::kValid;
+}
+
 }  // namespace arref::tls

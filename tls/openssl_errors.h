@@ -18,4 +18,8 @@ std::string OpenSslErrorsOrErrno();
 // A certificate's subject as one line ("/CN=localhost"), "?" when it has none.
 std::string CertificateSubject(const X509* certificate);
 
+// Where this machine's clock falls in a certificate's validity.
+enum class CertificateDates { kValid, kExpired, kNotYetValid };
+CertificateDates DatesOf(const X509* certificate);
+
 }  // namespace arref::tls

@@ -102,8 +102,7 @@ std::string ValidityNote(SSL* ssl) {
   STACK_OF(X509)* chain = SSL_get_peer_cert_chain(ssl);
   for (int i = 0; chain != nullptr && i < sk_X509_num(chain); ++i) {
     X509* c = sk_X509_value(chain, i);
-    if (X509_cmp_current_time(X509_get0_notBefore(c)) <= 0 && X509_cmp_current_time(X509_get0_notAfter(c)) >= 0)
-      continue;
+    if (tls::DatesOf(c) == tls::CertificateDates::kValid) continue;
     const std::time_t now = std::time(nullptr);
     std::tm now_utc{};
     gmtime_r(&now, &now_utc);

@@ -1,5 +1,4 @@
 // Seedless referencing (arref-auto) on simulated rooms with ground truth: both arms of a two-arm
-#include <spdlog/spdlog.h>
 // room found and ranked, the hint picks the primary, a room without the robot is FAILED.
 #include <gtest/gtest.h>
 
@@ -72,6 +71,12 @@ TEST(Seedless, FindsBothArmsOfATwoArmRoomAndTheHintPicksThePrimary) {
     for (const FoundInstance& f : report.instances) best = std::min(best, Add(room, f.report.T_world_base, arm));
     EXPECT_LT(best, 0.02) << "an arm at " << arm.T_world_base.translation().transpose() << " was not found";
   }
+  for (const FoundInstance& f : report.instances) {  // each instance says how much of its place it explains
+    EXPECT_GT(f.explained, 0.0);
+    EXPECT_LE(f.explained, 1.0);
+    EXPECT_GT(f.explained_bar, 0.5);
+    EXPECT_LT(f.explained_bar, 1.0);
+  }
   // The hint: the wearer stands by the second arm.
   InstanceHint hint;
   hint.wearer_position_world = room.sim.arms[1].T_world_base.translation() + Vec3(0.5, 0, 1.0);
@@ -96,7 +101,9 @@ TEST(Seedless, ARoomWithoutTheRobotIsFailedWithNoInstanceOk) {
 // FAILED with no pose, not a LOW_CONFIDENCE instance on a box or a shelf.
 // Disabled: it fails. Room 2 of these gives an instance said OK (inliers 0.31, margin 0.29) in a
 // room with no arm: the explanation check covers LOW_CONFIDENCE fits only, and this OK fit on
-// clutter passes arref-icp's own checks. It passed with support heights taken from the peak's
+// clutter passes arref-icp's own checks. Applying the check to OK fits does not mend it: on the
+// project's own mesher most true instances explain less than the bar too (docs/seedless.md,
+// "OK fits and the explanation"). It passed with support heights taken from the peak's
 // median, which the robustness bench did not keep. Run it with --gtest_also_run_disabled_tests.
 TEST(Seedless, DISABLED_ARoomWithoutASmallArmIsFailed) {
   const std::string urdf = testing::SharedDir() + "/robots/motoman_mh5_support/urdf/mh5.urdf";

@@ -407,7 +407,7 @@ Result<WholeMapReport> AutoSearch(const RobotSide& robot, const TriangleMesh& sc
       ++unexplained;
       continue;
     }
-    if (!duplicate) out.instances.push_back({std::move(*full[i]), distinct[i].detection_score});
+    if (!duplicate) out.instances.push_back({std::move(*full[i]), distinct[i].detection_score, e.share, e.Bar()});
   }
   out.stages_run.push_back(fmt::format("arref-icp-x{}", distinct.size()));
   if (out.instances.empty() && unexplained > 0)

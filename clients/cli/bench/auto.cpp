@@ -102,10 +102,10 @@ std::vector<AutoRun> RunRoom(const BenchRobot& robot, const BenchRobot* other, s
       for (const auto* a : requested) nearest = std::min(nearest, add_to(f.report.T_world_base, *a));
       r.wrong_ok += f.report.status == ResultStatus::kOk && nearest > kWrongAddM;
       spdlog::debug("bench: auto: {} {} room {} ({} arms): instance at ({:.2f}, {:.2f}) {} inliers {:.3f} score {:.3f} margin {:.3f} "
-                    "detection {:.3f}, {:.1f} mm from the nearest arm",
+                    "detection {:.3f} explained {:.3f} (bar {:.3f}), {:.1f} mm from the nearest arm",
                     robot.label, label.mesher, index, arms, f.report.T_world_base.translation().x(),
                     f.report.T_world_base.translation().y(), ResultStatusName(f.report.status), f.report.inlier_fraction,
-                    f.report.score, f.report.margin, f.detection_score, nearest * 1000);
+                    f.report.score, f.report.margin, f.detection_score, f.explained, f.explained_bar, nearest * 1000);
     }
     if (report->primary >= 0 && !requested.empty()) {
       double nearest = std::numeric_limits<double>::infinity();

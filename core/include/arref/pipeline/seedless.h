@@ -26,6 +26,8 @@ struct InstanceHint {
 struct FoundInstance {
   RegistrationReport report;
   double detection_score = 0.0;
+  double explained = 0.0;      // share of the map samples round the fitted robot that lie on it
+  double explained_bar = 0.0;  // the share a robot that is there reaches (below it: other surfaces)
 };
 
 struct WholeMapReport {

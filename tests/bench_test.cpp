@@ -63,6 +63,9 @@ TEST(Bench, QuickRunWritesSaneTables) {
     const std::string png = out + "/img/scenes_" + run.at("method") + "_" + run.at("scene") + "_" + run.at("cell") + ".png";
     EXPECT_EQ(std::filesystem::exists(png), run.at("ok") == "1") << png << " (" << run.at("error") << ")";
     pictures += std::filesystem::exists(png) && std::filesystem::file_size(png) > 1000u;
+    if (run.at("method") == "arref-icp" && run.at("ok") == "1") {  // its steps are profiled per run
+      EXPECT_NE(run.at("steps").find("register/pose-search="), std::string::npos) << run.at("steps");
+    }
   }
   EXPECT_GE(pictures, 2);  // pcl-icp always gives a pose
   for (const char* f : {"results.md", "runs.csv", "table1.csv", "table2.csv", "table3.csv", "scenes.csv", "rotation.dat",

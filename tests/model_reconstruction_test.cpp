@@ -7,6 +7,8 @@
 #include "arref/fusion/model_reconstruction.h"
 #include "arref/pipeline/pipeline.h"
 #include "arref/fusion/raycaster.h"
+#include "arref/fusion/robot_side.h"
+#include "arref/robot/robot_model.h"
 #include "arref/scene/sampling.h"
 #include "arref/fusion/tsdf.h"
 #include "test_support.h"
@@ -405,6 +407,26 @@ TEST(RobotSide, ExpectedSurfacesAreCachedPerVoxelAndWalk) {
   auto bad = (*side)->Expected(kVoxel, RobotSide::kWalks);
   ASSERT_FALSE(bad.ok());
   EXPECT_NE(bad.status().ToString().find("walk"), std::string::npos);
+}
+
+// A client sending meshes of ever new resolutions must not grow the cache without end: the
+// least recently used voxel size goes, and what a request still holds stays valid.
+TEST(RobotSide, KeepsOnlyTheMostRecentVoxelSizes) {
+  ASSERT_OK_AND_ASSIGN(const RobotModel robot, RobotModel::Load(testing::BuiltinRobotUrdf()));
+  ASSERT_OK_AND_ASSIGN(const auto side, RobotSide::Create(robot, {}, 2000, 1));
+  ASSERT_OK_AND_ASSIGN(const auto first, side->Expected(0.06));
+  const std::size_t first_points = first->size();
+  for (std::size_t i = 1; i <= RobotSide::kVoxelSizesKept; ++i) {
+    ASSERT_TRUE(side->Expected(0.06 + 0.01 * static_cast<double>(i)).ok());
+    EXPECT_EQ(side->voxel_sizes_kept(), std::min(i + 1, RobotSide::kVoxelSizesKept));
+  }
+  EXPECT_EQ(first->size(), first_points);  // dropped from the cache, still held here
+  ASSERT_OK_AND_ASSIGN(const auto again, side->Expected(0.06));  // made anew
+  EXPECT_NE(again.get(), first.get());
+  ASSERT_OK_AND_ASSIGN(const auto recent, side->Expected(0.06 + 0.01 * RobotSide::kVoxelSizesKept));
+  ASSERT_OK_AND_ASSIGN(const auto recent_again, side->Expected(0.06 + 0.01 * RobotSide::kVoxelSizesKept));
+  EXPECT_EQ(recent.get(), recent_again.get());  // the recent ones stay
+  EXPECT_EQ(side->voxel_sizes_kept(), RobotSide::kVoxelSizesKept);
 }
 
 }  // namespace

@@ -80,7 +80,27 @@ Result<std::shared_ptr<const PointCloud>> RobotSide::Expected(double voxel_m, in
   const ExpectedKey key{std::lround(voxel_m * 1000), walk, thinned_to};
   // Built under the lock: concurrent requests for the same voxel wait for one build.
   std::lock_guard lock(mutex_);
-  return ExpectedLocked(key, cancel);
+  auto surface = ExpectedLocked(key, cancel);
+  KeepRecentVoxelSizes(std::get<0>(key));
+  return surface;
+}
+
+std::size_t RobotSide::voxel_sizes_kept() const {
+  std::lock_guard lock(mutex_);
+  return voxel_sizes_mm_.size();
+}
+
+void RobotSide::KeepRecentVoxelSizes(long used_mm) const {
+  std::erase(voxel_sizes_mm_, used_mm);
+  voxel_sizes_mm_.push_back(used_mm);
+  while (voxel_sizes_mm_.size() > kVoxelSizesKept) {
+    const long dropped = voxel_sizes_mm_.front();
+    voxel_sizes_mm_.erase(voxel_sizes_mm_.begin());
+    std::erase_if(expected_, [&](const auto& entry) { return std::get<0>(entry.first) == dropped; });
+    std::erase_if(failed_, [&](const auto& entry) { return std::get<0>(entry.first) == dropped; });
+    spdlog::debug("expected robot surfaces at {} mm voxels dropped from the cache (at most {} voxel sizes kept)", dropped,
+                  kVoxelSizesKept);
+  }
 }
 
 Result<std::shared_ptr<const PointCloud>> RobotSide::ExpectedLocked(const ExpectedKey& key,

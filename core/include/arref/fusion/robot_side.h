@@ -40,8 +40,14 @@ class RobotSide {
   // makes every walk's surface. A cancel while they are made returns Status::Cancelled and
   // keeps nothing: the next call makes them again.
   static constexpr int kWalks = 8;
+  // Voxel sizes whose surfaces are kept, least recently used dropped first. A headset meshes at
+  // one resolution (a spatial-mapping setting), so a session needs one or two; the bound keeps
+  // a client sending meshes of ever new resolutions from growing the cache without end.
+  // Surfaces a request still holds live on until it lets them go.
+  static constexpr std::size_t kVoxelSizesKept = 4;
   Result<std::shared_ptr<const PointCloud>> Expected(double voxel_m, int walk = -1, std::size_t thinned_to = 0,
                                                      const CancelToken* cancel = nullptr) const;
+  std::size_t voxel_sizes_kept() const;  // how many voxel sizes' surfaces the cache holds now
   // The samples a person can see (VisiblePoints), Thinned; cached, thread-safe.
   std::shared_ptr<const PointCloud> Visible(std::size_t thinned_to) const;
   // The same with the objects mapped round the robot, from the headset's mesh with the robot
@@ -62,6 +68,7 @@ class RobotSide {
   // Into expected_ or failed_, under mutex_; a cancel keeps nothing and returns Cancelled.
   Status MakeEveryWalk(long voxel_mm, const CancelToken* cancel) const;
   Result<std::shared_ptr<const ExpectedSurfaceMaker>> Maker() const;  // under mutex_
+  void KeepRecentVoxelSizes(long used_mm) const;                       // under mutex_
   TriangleMesh mesh_base_;
   PointCloud samples_;
   std::uint64_t seed_;
@@ -69,6 +76,7 @@ class RobotSide {
   mutable std::shared_ptr<const ExpectedSurfaceMaker> maker_;  // made on first use
   mutable std::map<ExpectedKey, std::shared_ptr<const PointCloud>> expected_;
   mutable std::map<ExpectedKey, Status> failed_;
+  mutable std::vector<long> voxel_sizes_mm_;  // of expected_ and failed_, least recently used first
   mutable std::map<std::size_t, std::shared_ptr<const PointCloud>> visible_;
 };
 

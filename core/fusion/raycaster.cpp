@@ -11,6 +11,8 @@
 #include <numbers>
 #include <string>
 
+#include "arref/fusion/embree_ray.h"
+
 namespace arref {
 
 Iso3 LookAt(const Vec3& eye, const Vec3& target) {
@@ -123,18 +125,7 @@ RangeImage RayCaster::Render(const PinholeCamera& camera, const Iso3& T_scene_ca
     for (int u = 0; u < camera.width; ++u) {
       if (traced && !(*traced)[static_cast<std::size_t>(v) * camera.width + u]) continue;
       const Vec3 dir = R * camera.RayDirection(u, v);
-      RTCRayHit rh{};
-      rh.ray.org_x = static_cast<float>(origin.x());
-      rh.ray.org_y = static_cast<float>(origin.y());
-      rh.ray.org_z = static_cast<float>(origin.z());
-      rh.ray.dir_x = static_cast<float>(dir.x());
-      rh.ray.dir_y = static_cast<float>(dir.y());
-      rh.ray.dir_z = static_cast<float>(dir.z());
-      rh.ray.tnear = 0.0f;
-      rh.ray.tfar = static_cast<float>(max_range_m);
-      rh.ray.mask = static_cast<unsigned>(-1);  // Embree skips geometry whose mask bits miss the ray's
-      rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-      rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+      RTCRayHit rh = EmbreeRay(origin, dir, max_range_m);
       rtcIntersect1(impl_->scene, &context, &rh);
       if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) continue;
       const std::size_t pixel = static_cast<std::size_t>(v) * camera.width + u;

@@ -10,6 +10,8 @@
 #include <limits>
 #include <numbers>
 
+#include "arref/fusion/embree_ray.h"
+
 namespace arref {
 
 DepthIntrinsics DepthIntrinsics::FromFov(int width, int height, double fov_horizontal_deg) {
@@ -163,18 +165,7 @@ ModelView ModelCaster::Render(const DepthIntrinsics& camera, const Iso3& T_base_
       const Vec3 ray_cam = camera.Ray(gu * stride, gv * stride);
       const double ray_len = ray_cam.norm();
       const Vec3 dir = R * (ray_cam / ray_len);
-      RTCRayHit rh{};
-      rh.ray.org_x = static_cast<float>(origin.x());
-      rh.ray.org_y = static_cast<float>(origin.y());
-      rh.ray.org_z = static_cast<float>(origin.z());
-      rh.ray.dir_x = static_cast<float>(dir.x());
-      rh.ray.dir_y = static_cast<float>(dir.y());
-      rh.ray.dir_z = static_cast<float>(dir.z());
-      rh.ray.tnear = 0.0f;
-      rh.ray.tfar = static_cast<float>(max_range_m);
-      rh.ray.mask = static_cast<unsigned>(-1);  // Embree skips geometry whose mask bits miss the ray's
-      rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-      rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
+      RTCRayHit rh = EmbreeRay(origin, dir, max_range_m);
       rtcIntersect1(impl_->top, &context, &rh);
       if (rh.hit.instID[0] == RTC_INVALID_GEOMETRY_ID) continue;
       const std::size_t cell = static_cast<std::size_t>(gv) * gw + gu;

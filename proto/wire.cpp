@@ -208,4 +208,16 @@ const char* ErrorCodeName(pb::ErrorCode code) {
   return name.c_str();  // protobuf keeps enum names for the process lifetime
 }
 
+pb::ServerMessage ErrorMessage(pb::ErrorCode code, const std::string& message, std::uint64_t request_id,
+                               std::uint64_t surface_id, bool fatal) {
+  pb::ServerMessage reply;
+  auto* e = reply.mutable_error();
+  e->set_code(code);
+  e->set_message(message);
+  e->set_request_id(request_id);
+  e->set_surface_id(surface_id);
+  e->set_fatal(fatal);
+  return reply;
+}
+
 }  // namespace arref::wire

@@ -54,5 +54,8 @@ void MatrixToProto(const Iso3& T, google::protobuf::RepeatedField<double>* out);
 Result<Iso3> MatrixFromProto(const google::protobuf::RepeatedField<double>& m);
 
 const char* ErrorCodeName(pb::ErrorCode code);
+// An Error message; ids 0 where it answers no request or surface. fatal: the session ends.
+pb::ServerMessage ErrorMessage(pb::ErrorCode code, const std::string& message, std::uint64_t request_id = 0,
+                               std::uint64_t surface_id = 0, bool fatal = false);
 
 }  // namespace arref::wire

@@ -102,13 +102,7 @@ class OfflineSession {
 
   static pb::ServerMessage Error(pb::ErrorCode code, const std::string& message, std::uint64_t request_id = 0,
                                  std::uint64_t surface_id = 0) {
-    pb::ServerMessage reply;
-    auto* e = reply.mutable_error();
-    e->set_code(code);
-    e->set_message(message);
-    e->set_request_id(request_id);
-    e->set_surface_id(surface_id);
-    return reply;
+    return wire::ErrorMessage(code, message, request_id, surface_id);
   }
 
  private:

@@ -711,13 +711,7 @@ void Session::Send(const pb::ServerMessage& message) { Enqueue(wire::SharedFrame
 void Session::SendError(pb::ErrorCode code, const std::string& message, std::uint64_t request_id,
                         std::uint64_t surface_id) {
   spdlog::info("session {}: error {}: {}", id_, wire::ErrorCodeName(code), message);
-  pb::ServerMessage reply;
-  auto* e = reply.mutable_error();
-  e->set_code(code);
-  e->set_message(message);
-  e->set_request_id(request_id);
-  e->set_surface_id(surface_id);
-  Send(reply);
+  Send(wire::ErrorMessage(code, message, request_id, surface_id));
 }
 
 void Session::Enqueue(std::shared_ptr<const std::string> frame) {
@@ -773,12 +767,7 @@ void Session::FailAndClose(pb::ErrorCode code, const std::string& message) {
   if (state_ >= State::kClosing) return;
   spdlog::warn("session {} ({}): closing: {}: {}", id_, peer_, wire::ErrorCodeName(code), message);
   if (handshaking_) return CloseNow(std::string(wire::ErrorCodeName(code)) + ": " + message);
-  pb::ServerMessage reply;
-  auto* e = reply.mutable_error();
-  e->set_code(code);
-  e->set_message(message);
-  e->set_fatal(true);
-  Send(reply);
+  Send(wire::ErrorMessage(code, message, 0, 0, /*fatal=*/true));
   StartClosing(std::string(wire::ErrorCodeName(code)) + ": " + message);
 }
 

@@ -218,9 +218,7 @@ void TrackingService::Process(Track& t, Pending job) {
   }
   pb::ServerMessage message;
   if (!r.ok()) {
-    auto* e = message.mutable_error();
-    e->set_code(pb::ERROR_CODE_BAD_DEPTH_FRAME);
-    e->set_message(fmt::format("DepthFrame {}: {}", job.frame_id, r.status().message()));
+    message = wire::ErrorMessage(pb::ERROR_CODE_BAD_DEPTH_FRAME, fmt::format("DepthFrame {}: {}", job.frame_id, r.status().message()));
   } else {
     std::uint64_t processed, dropped;
     {

@@ -53,6 +53,13 @@ struct TrackerSettings {
   // a moved world leaves the filter's pose explaining little.
   double rereference_margin = 0.15;
   int confirm_frames = 3;
+  // A fit (within the filter's gate) whose support falls more than this below that of the pose
+  // it started from is not fused: a fit from a right start explains the frame at least about as
+  // well as its start, so a clearly worse one was pulled off by depth that is not the robot.
+  double max_fit_support_drop = 0.05;
+  // A fit's covariance is divided by its coverage (the share of the visible model pixels its
+  // depth agrees with), at least this: a robot mostly hidden is fitted on few of its own pixels.
+  double min_covariance_coverage = 0.05;
   std::size_t min_model_points = 60;
   // Frames with a lost fit before re-acquisition when the camera has not jumped (one lost frame
   // may be a hand in front of the sensor).

@@ -75,8 +75,8 @@ class OfflineSession {
       case K::kSurfaceUpsert: return OnSurfaceUpsert(m.surface_upsert());
       case K::kSurfaceRemove:
         if (!spatial_.Remove(m.surface_remove().surface_id()))
-          return Error(pb::ERROR_CODE_UNKNOWN_SURFACE, "surface is not held by this session", 0,
-                       m.surface_remove().surface_id());
+          return wire::ErrorMessage(pb::ERROR_CODE_UNKNOWN_SURFACE, "surface is not held by this session", 0,
+                                    m.surface_remove().surface_id());
         return std::nullopt;
       case K::kSeedPose: return OnSeedPose(m.seed_pose());
       case K::kJointState: return OnJointState(m.joint_state());
@@ -97,20 +97,16 @@ class OfflineSession {
 
   static std::optional<pb::ServerMessage> Answer(const std::optional<Refusal>& refused) {
     if (!refused) return std::nullopt;
-    return Error(refused->code, refused->message);
-  }
-
-  static pb::ServerMessage Error(pb::ErrorCode code, const std::string& message, std::uint64_t request_id = 0,
-                                 std::uint64_t surface_id = 0) {
-    return wire::ErrorMessage(code, message, request_id, surface_id);
+    return wire::ErrorMessage(refused->code, refused->message);
   }
 
  private:
   // Offline there are no other sessions whose results it would see: the answer only.
   std::optional<pb::ServerMessage> OnSubscribe(const pb::Subscribe& m) {
     if (!robots_.Find(m.robot_id()))
-      return Error(pb::ERROR_CODE_UNKNOWN_ROBOT,
-                   fmt::format("Subscribe: robot '{}' is not served here (served: {})", m.robot_id(), robots_.Ids()));
+      return wire::ErrorMessage(pb::ERROR_CODE_UNKNOWN_ROBOT,
+                                fmt::format("Subscribe: robot '{}' is not served here (served: {})", m.robot_id(),
+                                            robots_.Ids()));
     pb::ServerMessage reply;
     reply.mutable_subscribed()->set_robot_id(m.robot_id());
     reply.mutable_subscribed()->set_subscribed(!m.unsubscribe());
@@ -134,16 +130,16 @@ class OfflineSession {
     auto surface = wire::SurfaceFromProto(m);
     Status s = surface.ok() ? spatial_.Upsert(std::move(*surface)) : surface.status();
     if (!s.ok())
-      return Error(pb::ERROR_CODE_BAD_SURFACE, fmt::format("surface {} rejected: {}", m.surface_id(), s.message()), 0,
-                   m.surface_id());
+      return wire::ErrorMessage(pb::ERROR_CODE_BAD_SURFACE,
+                                fmt::format("surface {} rejected: {}", m.surface_id(), s.message()), 0, m.surface_id());
     return std::nullopt;
   }
 
   std::optional<pb::ServerMessage> OnSeedPose(const pb::SeedPose& m) {
     const auto frame = wire::FromProto(m.frame());
-    if (!frame.ok()) return Error(pb::ERROR_CODE_INVALID_ARGUMENT, "SeedPose: " + frame.status().message());
+    if (!frame.ok()) return wire::ErrorMessage(pb::ERROR_CODE_INVALID_ARGUMENT, "SeedPose: " + frame.status().message());
     auto T = wire::PoseFromProto(m.t_world_seed(), *frame);
-    if (!T.ok()) return Error(pb::ERROR_CODE_INVALID_ARGUMENT, "SeedPose.T_world_seed: " + T.status().message());
+    if (!T.ok()) return wire::ErrorMessage(pb::ERROR_CODE_INVALID_ARGUMENT, "SeedPose.T_world_seed: " + T.status().message());
     seed_ = *T;
     seed_frame_ = *frame;
     return std::nullopt;
@@ -154,7 +150,7 @@ class OfflineSession {
     JointStateOutcome outcome = ReadJointState(m, robots_);
     std::optional<pb::ServerMessage> answer;
     if (outcome.error != pb::ERROR_CODE_UNSPECIFIED)  // then it was rejected, or names no robot served
-      answer = Error(outcome.error, outcome.message);
+      answer = wire::ErrorMessage(outcome.error, outcome.message);
     else if (outcome.keep)
       answer = Answer(FeedJointStream(m, outcome.complete, tracking_, sink_->id()));
     if (outcome.keep) joints_[m.robot_id()] = std::move(outcome.joints);
@@ -164,10 +160,10 @@ class OfflineSession {
   std::optional<pb::ServerMessage> OnRegisterRequest(const pb::RegisterRequest& m, double t_s) {
     auto job = BuildJob(m, robots_, registration_,
                         SessionDefaults{.seed = seed_, .seed_frame = seed_frame_, .joints = &joints_});
-    if (!job.ok()) return Error(RequestErrorCode(job.status()), job.status().message(), m.request_id());
+    if (!job.ok()) return wire::ErrorMessage(RequestErrorCode(job.status()), job.status().message(), m.request_id());
     if (spatial_.size() == 0)
-      return Error(pb::ERROR_CODE_NO_SCENE, "the session holds no surfaces: send SurfaceUpsert messages first",
-                   m.request_id());
+      return wire::ErrorMessage(pb::ERROR_CODE_NO_SCENE,
+                                "the session holds no surfaces: send SurfaceUpsert messages first", m.request_id());
     Job& j = **job;
     j.session_id = header_.session_id();
     j.scene_world = spatial_.MergedWorld();
@@ -242,13 +238,13 @@ class PendingResults {
   // The Cancel of a request arriving at t_s: its error, if the live server would have answered one.
   std::optional<pb::ServerMessage> Cancel(std::uint64_t request_id, double t_s) {
     if (request_id == 0)
-      return OfflineSession::Error(pb::ERROR_CODE_INVALID_ARGUMENT,
-                                   "Cancel.request_id must be >= 1 (0 is never a request id)");
+      return wire::ErrorMessage(pb::ERROR_CODE_INVALID_ARGUMENT,
+                                "Cancel.request_id must be >= 1 (0 is never a request id)");
     Until(t_s);
     auto it = std::find_if(pending_.begin(), pending_.end(),
                            [&](const Pending& p) { return p.message.result().request_id() == request_id; });
     if (it == pending_.end())
-      return OfflineSession::Error(
+      return wire::ErrorMessage(
           pb::ERROR_CODE_UNKNOWN_REQUEST,
           fmt::format("request {} is not in flight (never accepted or already answered)", request_id), request_id);
     const double started_s = it->done_s - it->run_s;

@@ -218,7 +218,8 @@ void TrackingService::Process(Track& t, Pending job) {
   }
   pb::ServerMessage message;
   if (!r.ok()) {
-    message = wire::ErrorMessage(pb::ERROR_CODE_BAD_DEPTH_FRAME, fmt::format("DepthFrame {}: {}", job.frame_id, r.status().message()));
+    message = wire::ErrorMessage(pb::ERROR_CODE_BAD_DEPTH_FRAME,
+                                 fmt::format("DepthFrame {}: {}", job.frame_id, r.status().message()));
   } else {
     std::uint64_t processed, dropped;
     {

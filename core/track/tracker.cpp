@@ -60,6 +60,10 @@ struct Measurement {
   std::size_t model_points = 0, depth_points = 0;
 };
 
+// A sensor whose depth wraps (AHAT, modulo about 1 m): depth behind the model and an occluder
+// in front of it can read alike, so some rules hold only for frames that do not wrap.
+bool Wraps(const DepthFrame& f) { return f.wrap_m > 0; }
+
 // A depth in metres, unwrapped (when the sensor wraps) to the one nearest the expected depth.
 float Unwrapped(float d, float expected, double wrap_m) {
   if (wrap_m <= 0 || d <= 0) return d;
@@ -141,7 +145,7 @@ PointCloud Tracker::Impl::DepthPoints(const DepthFrame& f, const ModelView& view
       float d = f.DepthAt(gu * s, gv * s);
       if (d <= 0) continue;
       const float expected = view.z_depth[static_cast<std::size_t>(gv) * gw + gu];
-      if (f.wrap_m > 0) {
+      if (Wraps(f)) {
         // Only where the model predicts a depth can a wrapped one be told apart.
         if (expected <= 0) continue;
         d = Unwrapped(d, expected, f.wrap_m);
@@ -176,13 +180,13 @@ Tracker::Impl::Agreement Tracker::Impl::AgreementAt(const DepthFrame& f, const M
     // A wrapping sensor cannot tell depth behind the model from an occluder more than half a
     // wrap in front of it (aliased behind): only when that nearer alias would lie behind the
     // camera is the model seen through.
-    else if (d > q.z()) ++(f.wrap_m > 0 && d - f.wrap_m > 0 ? ambiguous : through);
+    else if (d > q.z()) ++(Wraps(f) && d - f.wrap_m > 0 ? ambiguous : through);
     else ++occluded;
   }
   Agreement a;
   a.agreement = agree + through ? static_cast<double>(agree) / static_cast<double>(agree + through) : 0.0;
   a.coverage = agree ? static_cast<double>(agree) / static_cast<double>(agree + through + occluded + ambiguous) : 0.0;
-  a.support = f.wrap_m > 0 ? a.coverage : a.agreement;
+  a.support = Wraps(f) ? a.coverage : a.agreement;
   return a;
 }
 
@@ -243,9 +247,7 @@ Measurement Tracker::Impl::Measure(const DepthFrame& f, const Iso3& T0, const st
   // model pixels), which only pulls the fit off. This rule and the two below hold for unwrapped
   // (long-throw) frames only: in AHAT frames they recovered the KR5 arc's lost stream but lost
   // one of the SIA10D's (not yet understood; docs/tracking.md).
-  const bool unwrapped = f.wrap_m <= 0;
-  PointCloud source =
-      DepthPoints(f, view, T0, crop, unwrapped ? static_cast<float>(settings.crop_margin_m) : 0.0f);
+  PointCloud source = DepthPoints(f, view, T0, crop, Wraps(f) ? 0.0f : static_cast<float>(settings.crop_margin_m));
   m.depth_points = source.size();
   out->model_ms += lap.Lap();
   if (m.model_points < settings.min_model_points || source.size() < settings.min_model_points) return m;
@@ -265,7 +267,7 @@ Measurement Tracker::Impl::Measure(const DepthFrame& f, const Iso3& T0, const st
   // ICP's covariance counts every depth point near a model point, an occluder's too; when only
   // a share of the visible model agrees with the depth, the robot's own pixels are that much
   // fewer, and a fit on them (on the robot's few unhidden pixels) is that much less certain.
-  if (unwrapped) m.covariance /= std::max(m.coverage, settings.min_covariance_coverage);
+  if (!Wraps(f)) m.covariance /= std::max(m.coverage, settings.min_covariance_coverage);
   m.fits = m.support >= settings.min_agreement;
   out->icp_ms += lap.Lap();
   return m;
@@ -449,7 +451,7 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
     // as its start (up to a few silhouette pixels: max_fit_support_drop), so the pose holds and
     // the fit is not fused. Outside the gate nothing changes: such a fit is no evidence of a
     // jump either (it is not clearly better than its own start).
-    if (frame.wrap_m <= 0 && m.support < m.start_support - s.max_fit_support_drop && in_gate(m))
+    if (!Wraps(frame) && m.support < m.start_support - s.max_fit_support_drop && in_gate(m))
       return finish(TrackState::kTracking);
     // Rejected measurements become a world jump only while they explain the frames clearly better.
     const FilterVerdict v = I.filter.Update(PoseToState(m.T_world_base), m.covariance, frame.time_s, clearly_better(m));

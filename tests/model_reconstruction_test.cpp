@@ -1,6 +1,7 @@
 #include <gtest/gtest.h>
 
 #include <algorithm>
+#include <array>
 #include <cmath>
 #include <numbers>
 
@@ -427,6 +428,21 @@ TEST(RobotSide, KeepsOnlyTheMostRecentVoxelSizes) {
   ASSERT_OK_AND_ASSIGN(const auto recent_again, side->Expected(0.06 + 0.01 * RobotSide::kVoxelSizesKept));
   EXPECT_EQ(recent.get(), recent_again.get());  // the recent ones stay
   EXPECT_EQ(side->voxel_sizes_kept(), RobotSide::kVoxelSizesKept);
+  // A cancelled build of a new size keeps nothing and pushes none of the kept sizes out.
+  const std::array<double, 4> kept_voxels = {0.06, 0.08, 0.09, 0.10};
+  std::vector<std::shared_ptr<const PointCloud>> kept;
+  for (const double voxel : kept_voxels) {
+    ASSERT_OK_AND_ASSIGN(auto surface, side->Expected(voxel));
+    kept.push_back(surface);
+  }
+  CancelToken cancelled;
+  cancelled.Cancel();
+  EXPECT_EQ(side->Expected(0.2, -1, 0, &cancelled).status().code(), StatusCode::kCancelled);
+  EXPECT_EQ(side->voxel_sizes_kept(), RobotSide::kVoxelSizesKept);
+  for (std::size_t i = 0; i < kept.size(); ++i) {
+    ASSERT_OK_AND_ASSIGN(const auto still, side->Expected(kept_voxels[i]));
+    EXPECT_EQ(still.get(), kept[i].get()) << kept_voxels[i] << " m voxels' surface was made anew";
+  }
 }
 
 }  // namespace

@@ -81,7 +81,8 @@ Result<std::shared_ptr<const PointCloud>> RobotSide::Expected(double voxel_m, in
   // Built under the lock: concurrent requests for the same voxel wait for one build.
   std::lock_guard lock(mutex_);
   auto surface = ExpectedLocked(key, cancel);
-  KeepRecentVoxelSizes(std::get<0>(key));
+  // A cancelled build keeps nothing, so it must not push out a voxel size that holds surfaces.
+  if (surface.status().code() != StatusCode::kCancelled) KeepRecentVoxelSizes(std::get<0>(key));
   return surface;
 }
 

@@ -244,10 +244,10 @@ TEST(Tracker, RecoversAHalfHiddenThinArmAfterAJump) {
 // The built-in robot's dev stream 2 in long-throw frames (the bench's simulator seed), without
 // its jump: at the far end of the wearer's walk (8-11.5 s) the depth lies in front of 85-95 % of
 // the robot's visible pixels, and ICP from the filter's pose (a few mm off) is pulled 4-22 cm
-// away by that occluder in the crop, agreeing worse with the frame than its start did. Fused, such fits walked the filter
-// 1-3 cm off: 222 of 330 frames within 10 mm. Now the occluder's depth is left out of the fit, a
-// fit's covariance grows as the robot's agreeing share shrinks, and a fit agreeing clearly worse
-// than its start is not fused: 284 (each of the three alone: 233-237, without the occluder's
+// away by that occluder in the crop, agreeing worse with the frame than its start did. Fused,
+// such fits walked the filter 1-3 cm off: 222 of 330 frames within 10 mm. Now the occluder's
+// depth is left out of the fit, a fit's covariance grows as the robot's agreeing share shrinks,
+// and a fit agreeing clearly worse than its start is not fused: 284 (each of the three alone: 233-237, without the occluder's
 // removal 267).
 TEST(Tracker, HoldsThePoseWhileClutterPullsTheFits) {
   auto robot = Builtin();

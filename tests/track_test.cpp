@@ -247,8 +247,8 @@ TEST(Tracker, RecoversAHalfHiddenThinArmAfterAJump) {
 // away by that occluder in the crop, agreeing worse with the frame than its start did. Fused,
 // such fits walked the filter 1-3 cm off: 222 of 330 frames within 10 mm. Now the occluder's
 // depth is left out of the fit, a fit's covariance grows as the robot's agreeing share shrinks,
-// and a fit agreeing clearly worse than its start is not fused: 284 (each of the three alone: 233-237, without the occluder's
-// removal 267).
+// and a fit agreeing clearly worse than its start is not fused: 284 (each of the three alone:
+// 233-237, without the occluder's removal 267).
 TEST(Tracker, HoldsThePoseWhileClutterPullsTheFits) {
   auto robot = Builtin();
   ASSERT_TRUE(robot);

@@ -52,7 +52,7 @@ const Fixture& Cell() {
     out.T_world_base = cell->T_world_base;
     auto model = SampleRobot(*robot, cell->joints, 10000, 1);
     out.model = VisiblePoints(*model);
-    out.scene_mesh = map.MergedWorld();
+    out.scene_mesh = *map.MergedWorld();
     out.cropped = CropToSphere(out.scene_mesh, cell->T_world_base.translation(), 2.0);
     out.voxel_m = MedianEdgeLength(out.cropped);
     out.scene = SampleSurface(out.cropped, 16000, 1);

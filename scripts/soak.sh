@@ -45,9 +45,20 @@ done
 sampler=$!
 echo "soak: $clients headsets for $seconds s against 127.0.0.1:$port (every $bad_every-th misbehaves); files in $out"
 status=0
+# The server's CPU time (user + system, in clock ticks) before and after: CPU per result bounds
+# the throughput any number of clients can get from this machine's cores.
+cpu_ticks() { awk '{print $14 + $15}' /proc/$server/stat; }
+cpu_start=$(cpu_ticks)
 build/clients/mock_headset/arref-mock-headset --port "$port" --clients "$clients" --soak "$seconds" \
-  --bad-every "$bad_every" --batch-interval 0.01 --timeout 300 --log-level error || status=$?
+  --bad-every "$bad_every" --batch-interval 0.01 --timeout 300 --log-level error | tee "$out/mock" || status=$?
+cpu_end=$(cpu_ticks)
 kill $sampler 2>/dev/null || true
+results=$(sed -n 's/^soak: .* \([0-9]*\) results, .*/\1/p' "$out/mock")
+awk -v t=$((cpu_end - cpu_start)) -v hz="$(getconf CLK_TCK)" -v n="${results:-0}" -v cores="$(nproc)" 'BEGIN {
+  s = t / hz
+  if (n > 0) printf "server CPU: %.0f s for %d results: %.0f ms per result, so at most %.1f results/s on %d cores\n",
+    s, n, 1000 * s / n, cores * n / s, cores
+}'
 # RSS after the warm-up (a tenth of the run, at least the first sample) against the end and the peak.
 awk -v warm=$(( seconds / 10 )) '
   { t[NR] = $1; r[NR] = $2; if ($2 > peak) peak = $2 }

@@ -48,14 +48,14 @@ struct Job {
   std::uint64_t request_id = 0;
   std::string robot_id;
   JointValues joints;          // complete and validated
-  TriangleMesh scene_world;    // snapshot of the session's map when the request came
+  std::shared_ptr<const TriangleMesh> scene_world;  // the session's map when the request came (shared, not copied)
   Iso3 T_world_seed = Iso3::Identity();
   bool seedless = false;       // no seed: the whole map is searched (RegisterWholeMap)
   InstanceHint hint;           // picks the primary instance of a seedless search
   RegistrationOptions options;
   FrameConvention result_frame = FrameConvention::kUnity;
   SteadyClock::time_point accepted_at = SteadyClock::now();
-  double scene_time_unix_s = 0.0;     // when scene_world was copied (Result.scene_time_unix_s)
+  double scene_time_unix_s = 0.0;     // when scene_world was taken (Result.scene_time_unix_s)
   double scene_headset_time_s = 0.0;  // its newest surface's headset timestamp
   // The one way to stop a job: Cancel messages, a closed session and shutdown cancel it; the
   // runner passes it to the pipeline, which returns Status::Cancelled.

@@ -47,7 +47,7 @@ JobOutcome RunRegistrationJob(Job& job, RobotRegistry& robots) {
     if (job.on_progress && !Cancelled(&job.cancel)) job.on_progress(stage, 0.05 + 0.95 * fraction);
   };
   if (job.seedless) {
-    auto whole = RegisterWholeMap(**model, job.scene_world, job.options, job.hint, progress, &job.cancel);
+    auto whole = RegisterWholeMap(**model, *job.scene_world, job.options, job.hint, progress, &job.cancel);
     if (whole.status().code() == StatusCode::kCancelled || Cancelled(&job.cancel)) return finish(CancelledWhileRunning());
     if (!whole.ok()) return finish(whole.status());
     out.seedless = true;
@@ -59,7 +59,7 @@ JobOutcome RunRegistrationJob(Job& job, RobotRegistry& robots) {
     out.report->timings.insert(out.report->timings.begin(), whole->timings.begin(), whole->timings.end());
     return finish(Status::Ok());
   }
-  auto report = RegisterScene(**model, job.scene_world, job.T_world_seed, job.options, progress, &job.cancel);
+  auto report = RegisterScene(**model, *job.scene_world, job.T_world_seed, job.options, progress, &job.cancel);
   // A cancel that arrives after the pipeline's last check still wins, as it did when every
   // stage boundary (the final "done" included) was a cancellation point.
   if (report.status().code() == StatusCode::kCancelled || Cancelled(&job.cancel))

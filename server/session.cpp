@@ -577,7 +577,7 @@ std::shared_ptr<Job> Session::MakeJob(const pb::RegisterRequest& m) {
   for (const auto& [sid, surface] : spatial_.surfaces())
     (*job)->scene_headset_time_s = std::max((*job)->scene_headset_time_s, surface.timestamp_s);
   // A seedless search takes the whole map: its size is bounded (the surfaces stay).
-  const std::size_t triangles = (*job)->scene_world.triangles.size();
+  const std::size_t triangles = (*job)->scene_world->triangles.size();
   if ((*job)->seedless && triangles > ctx_.config.limits.max_map_triangles) {
     SendError(pb::ERROR_CODE_LIMIT_EXCEEDED,
               fmt::format("the map holds {} triangles, over limits.max_map_triangles = {} for a search of the whole map; "

@@ -46,7 +46,7 @@ Result<Cell> MakeCell() {
   for (const Surface& s : cell.surfaces) ARREF_RETURN_IF_ERROR(map.Upsert(s));
   const RegistrationOptions defaults;
   ARREF_ASSIGN_OR_RETURN(auto side, RobotSide::Create(robot, cell.joints, defaults.model_samples, defaults.sample_seed));
-  TriangleMesh scene = map.MergedWorld();
+  TriangleMesh scene = *map.MergedWorld();
   return Cell{std::move(robot), std::move(cell), std::move(scene), std::move(side)};
 }
 

@@ -53,7 +53,7 @@ Result<Scene> SimulatedScene() {
   for (const Surface& s : cell.surfaces) ARREF_RETURN_IF_ERROR(map.Upsert(s));
   Scene scene;
   ARREF_ASSIGN_OR_RETURN(scene.picture.robot_base, robot.PosedMesh(cell.joints));
-  scene.picture.scene_world = map.MergedWorld();
+  scene.picture.scene_world = *map.MergedWorld();
   scene.picture.T_world_base = cell.T_world_base;
   scene.picture.T_world_seed = cell.seeds.at(0);
   scene.robot_world = scene.picture.robot_base;

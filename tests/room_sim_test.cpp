@@ -26,7 +26,7 @@ const RobotModel& BuiltinRobot() {
 TriangleMesh Merged(const SimulatedRoom& room) {
   SpatialMesh map;
   for (const Surface& s : room.surfaces) EXPECT_TRUE(map.Upsert(s).ok());
-  return map.MergedWorld();
+  return *map.MergedWorld();
 }
 
 // Share of the arm's surface samples (posed at its ground truth) within `within_m` of the mapped mesh.

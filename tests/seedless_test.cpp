@@ -27,7 +27,7 @@ const RobotModel& BuiltinRobot() {
 TriangleMesh Merged(const sim::SimulatedRoom& room) {
   SpatialMesh map;
   for (const Surface& s : room.surfaces) EXPECT_TRUE(map.Upsert(s).ok());
-  return map.MergedWorld();
+  return *map.MergedWorld();
 }
 
 struct Room {

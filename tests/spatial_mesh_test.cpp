@@ -61,7 +61,7 @@ TEST(SpatialMesh, BadUpdateKeepsThePreviousSurface) {
   bad.mesh.triangles[0][0] = 99;
   EXPECT_FALSE(map.Upsert(bad).ok());
   ASSERT_EQ(map.size(), 1u);
-  EXPECT_NEAR(map.MergedWorld().SurfaceArea(), 4.0, 1e-6) << "the old 2x2 surface is still there";
+  EXPECT_NEAR(map.MergedWorld()->SurfaceArea(), 4.0, 1e-6) << "the old 2x2 surface is still there";
 }
 
 TEST(SpatialMesh, UpdateReplacesAndTransformApplies) {
@@ -72,7 +72,7 @@ TEST(SpatialMesh, UpdateReplacesAndTransformApplies) {
   ASSERT_TRUE(map.Upsert(moved).ok());
   ASSERT_TRUE(map.Upsert(Quad(2)).ok());
   EXPECT_EQ(map.size(), 2u);
-  const TriangleMesh merged = map.MergedWorld();
+  const TriangleMesh merged = *map.MergedWorld();
   EXPECT_EQ(merged.triangles.size(), 4u);
   const Aabb box = BoundsOf(merged.vertices);
   EXPECT_NEAR(box.max.x(), 10.0, 1e-5);
@@ -80,6 +80,28 @@ TEST(SpatialMesh, UpdateReplacesAndTransformApplies) {
   EXPECT_TRUE(map.Remove(1));
   EXPECT_FALSE(map.Remove(1));
   EXPECT_EQ(map.size(), 1u);
+}
+
+// Requests share one merged mesh while the map is unchanged; a change makes a new one and
+// leaves the mesh a running request holds as it was.
+TEST(SpatialMesh, MergedWorldIsSharedUntilTheMapChanges) {
+  SpatialMesh map;
+  ASSERT_TRUE(map.Upsert(Quad(1)).ok());
+  const auto first = map.MergedWorld();
+  EXPECT_EQ(map.MergedWorld(), first) << "an unchanged map is merged once";
+  Surface bad = Quad(1);
+  bad.mesh.triangles[0][0] = 99;
+  ASSERT_FALSE(map.Upsert(bad).ok());
+  EXPECT_EQ(map.MergedWorld(), first) << "a refused update changes nothing";
+  ASSERT_TRUE(map.Upsert(Quad(2)).ok());
+  const auto second = map.MergedWorld();
+  EXPECT_NE(second, first);
+  EXPECT_EQ(first->triangles.size(), 2u) << "the mesh taken before the update is left as it was";
+  EXPECT_EQ(second->triangles.size(), 4u);
+  EXPECT_FALSE(map.Remove(7));
+  EXPECT_EQ(map.MergedWorld(), second) << "removing an unknown surface changes nothing";
+  ASSERT_TRUE(map.Remove(1));
+  EXPECT_EQ(map.MergedWorld()->triangles.size(), 2u);
 }
 
 TEST(SpatialMesh, CropKeepsTrianglesTouchingTheSphere) {

@@ -40,7 +40,7 @@ int Run(const DemoArgs& args) {
   SpatialMesh map;
   for (auto& s : cell->surfaces)
     if (auto st = map.Upsert(s); !st.ok()) return Fail(st);
-  const TriangleMesh scene = map.MergedWorld();
+  const TriangleMesh scene = *map.MergedWorld();
   RegistrationOptions options;
   auto model = RobotSide::Create(*robot, cell->joints, options.model_samples, options.sample_seed);
   if (!model.ok()) return Fail(model.status());

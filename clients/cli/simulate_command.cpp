@@ -72,7 +72,7 @@ int Run(const SimulateArgs& args) {
   SpatialMesh map;
   for (auto& s : cell->surfaces)
     if (auto st = map.Upsert(s); !st.ok()) return Fail(st.WithContext("simulator produced a bad surface"));
-  TriangleMesh mesh = map.MergedWorld();
+  TriangleMesh mesh = *map.MergedWorld();
   MeshFromRos(mesh, *frame);
   if (auto st = SaveMeshFile(mesh, args.mesh_out); !st.ok()) return Fail(st);
   if (!args.truth_mesh_out.empty()) {

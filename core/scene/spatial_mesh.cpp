@@ -55,10 +55,15 @@ Status ValidateSurface(const Surface& surface) {
 Status SpatialMesh::Upsert(Surface surface) {
   ARREF_RETURN_IF_ERROR(ValidateSurface(surface));
   surfaces_[surface.id] = std::move(surface);
+  merged_.reset();
   return Status::Ok();
 }
 
-bool SpatialMesh::Remove(std::uint64_t id) { return surfaces_.erase(id) > 0; }
+bool SpatialMesh::Remove(std::uint64_t id) {
+  if (surfaces_.erase(id) == 0) return false;
+  merged_.reset();
+  return true;
+}
 
 std::size_t SpatialMesh::vertex_count() const {
   std::size_t n = 0;
@@ -66,10 +71,12 @@ std::size_t SpatialMesh::vertex_count() const {
   return n;
 }
 
-TriangleMesh SpatialMesh::MergedWorld() const {
-  TriangleMesh merged;
-  for (const auto& [id, s] : surfaces_) merged.Append(s.mesh, s.T_world_surface);
-  return merged;
+std::shared_ptr<const TriangleMesh> SpatialMesh::MergedWorld() const {
+  if (merged_) return merged_;
+  auto merged = std::make_shared<TriangleMesh>();
+  for (const auto& [id, s] : surfaces_) merged->Append(s.mesh, s.T_world_surface);
+  merged_ = std::move(merged);
+  return merged_;
 }
 
 TriangleMesh CropToSphere(const TriangleMesh& mesh, const Vec3& center, double radius) {

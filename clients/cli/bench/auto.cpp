@@ -68,7 +68,7 @@ std::vector<AutoRun> RunRoom(const BenchRobot& robot, const BenchRobot* other, s
   SpatialMesh map;
   for (auto& s : room->surfaces)
     if (auto st = map.Upsert(s); !st.ok()) return fail_all(st);
-  const TriangleMesh scene = map.MergedWorld();
+  const TriangleMesh scene = *map.MergedWorld();
   label.triangles = scene.triangles.size();
   std::vector<const sim::RoomArm*> requested;
   for (const auto& a : room->arms)

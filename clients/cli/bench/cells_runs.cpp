@@ -136,7 +136,7 @@ Result<std::vector<Cell>> MakeCells(const RobotModel& robot, const std::vector<s
       Cell cell{kind, size, i, std::move(*sim), {}, {}};
       SpatialMesh map;
       for (auto& s : cell.sim.surfaces) ARREF_RETURN_IF_ERROR(map.Upsert(s));
-      cell.scene_world = map.MergedWorld();
+      cell.scene_world = *map.MergedWorld();
       ARREF_ASSIGN_OR_RETURN(cell.robot,
                              RobotSide::Create(robot, cell.sim.joints, defaults.model_samples, defaults.sample_seed));
       ARREF_ASSIGN_OR_RETURN(cell.robot_base, robot.PosedMesh(cell.sim.joints));
@@ -161,7 +161,7 @@ Result<Cell> MakeCell(const RobotModel& robot, const std::string& kind, int inde
   Cell cell{kind, "small", index, std::move(*sim), {}, std::move(robot_side)};
   SpatialMesh map;
   for (auto& s : cell.sim.surfaces) ARREF_RETURN_IF_ERROR(map.Upsert(s));
-  cell.scene_world = map.MergedWorld();
+  cell.scene_world = *map.MergedWorld();
   if (!cell.robot) {
     const RegistrationOptions defaults;
     auto model = RobotSide::Create(robot, cell.sim.joints, defaults.model_samples, defaults.sample_seed);

@@ -227,7 +227,8 @@ Status ReadTruth(const std::string& path, HeadsetScene* scene) {
 }  // namespace
 
 Result<HeadsetScene> SceneFromFiles(const std::string& mesh_path, FrameConvention mesh_frame,
-                                    const std::string& truth_json, const std::optional<Iso3>& seed) {
+                                    const std::string& truth_json, const std::optional<Iso3>& seed,
+                                    const std::string& truth_robot_urdf, const RobotLoadOptions& truth_robot) {
   auto mesh = LoadMeshFile(mesh_path);
   if (!mesh.ok()) return mesh.status().WithContext("--scene");
   MeshToRos(*mesh, mesh_frame);
@@ -237,10 +238,12 @@ Result<HeadsetScene> SceneFromFiles(const std::string& mesh_path, FrameConventio
   if (seed) scene.seeds.insert(scene.seeds.begin(), *seed);
   if (scene.seeds.empty()) return Status::InvalidArgument("no seed: pass --seed or a --truth file with seeds");
   if (scene.T_world_base_true) {
-    ARREF_ASSIGN_OR_RETURN(const std::string urdf, BuiltinRobotUrdf());
-    ARREF_ASSIGN_OR_RETURN(const RobotModel robot, RobotModel::Load(urdf));
-    ARREF_ASSIGN_OR_RETURN(PointCloud model, SampleRobot(robot, scene.joints, 5000, 7));
-    scene.model_points = std::move(model.points);
+    ARREF_ASSIGN_OR_RETURN(const std::string builtin, BuiltinRobotUrdf());
+    auto robot = RobotModel::Load(truth_robot_urdf.empty() ? builtin : truth_robot_urdf, truth_robot);
+    if (!robot.ok()) return robot.status().WithContext("--truth-robot");
+    auto model = SampleRobot(*robot, scene.joints, 5000, 7);
+    if (!model.ok()) return model.status().WithContext("the --truth cell's joints on the --truth-robot (is it the robot the cell was simulated with?)");
+    scene.model_points = std::move(model->points);
   }
   return scene;
 }

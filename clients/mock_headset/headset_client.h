@@ -65,8 +65,11 @@ struct HeadsetScene {
 // A simulated cell of the built-in robot (small preset), as the mock headset maps it.
 Result<HeadsetScene> SimulatedScene(std::uint64_t rng_seed);
 // A mesh file split into 1 m HoloLens-like surfaces; truth_json (optional) is `arref simulate`'s.
+// The errors against that truth are measured on truth_robot_urdf (empty: the built-in robot),
+// which must be the robot the cell was simulated with.
 Result<HeadsetScene> SceneFromFiles(const std::string& mesh_path, FrameConvention mesh_frame,
-                                    const std::string& truth_json, const std::optional<Iso3>& seed);
+                                    const std::string& truth_json, const std::optional<Iso3>& seed,
+                                    const std::string& truth_robot_urdf = "", const RobotLoadOptions& truth_robot = {});
 
 enum class Misbehaviour { kNone, kDisconnectMidUpload, kCorruptFrame, kOversizedMessage, kNeverReadReplies };
 

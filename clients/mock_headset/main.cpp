@@ -29,6 +29,8 @@ struct Args {
   std::string scene;
   std::string frame = "ros";
   std::string truth;
+  std::string truth_robot;
+  RobotLoadOptions truth_robot_load;
   std::string seed;
   int clients = 1;
   bool json = false;
@@ -52,6 +54,10 @@ void AddFlags(CLI::App& app, Args& a) {
   app.add_option("--frame", a.frame, "Convention of --scene and --seed: ros or unity")
       ->check(CLI::IsMember({"ros", "unity"}))->capture_default_str();
   app.add_option("--truth", a.truth, "Ground truth JSON of --scene (from `arref simulate`)");
+  app.add_option("--truth-robot", a.truth_robot,
+                 "URDF of the robot the --truth cell was simulated with, for its errors (default: the built-in robot)");
+  app.add_option("--package-path", a.truth_robot_load.package_path,
+                 "Folder holding ROS packages for --truth-robot's package:// URIs (repeatable)");
   app.add_option("--seed", a.seed, "Seed pose x,y,z,qx,qy,qz,qw for --scene");
   app.add_option("--seed-index", o.seed_index, "Which of the cell's seeds the user places")->capture_default_str();
   app.add_option("--batches", o.batches, "Upload the map in this many batches")->capture_default_str();
@@ -118,7 +124,7 @@ Result<HeadsetScene> BuildScene(const Args& a) {
     if (!s.ok()) return s.status().WithContext("--seed");
     seed = *s;
   }
-  return SceneFromFiles(a.scene, frame, a.truth, seed);
+  return SceneFromFiles(a.scene, frame, a.truth, seed, a.truth_robot, a.truth_robot_load);
 }
 
 nlohmann::json RunJson(const HeadsetRun& run) {

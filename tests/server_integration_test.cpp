@@ -584,6 +584,19 @@ TEST(MockHeadset, BadCellFilesGetClearErrors) {
   const auto r = arref::testing::RunCommand(kMockPath + " --port 1 --scene " + dir + "/tri.obj --seed 0,0,0,0,0,0,2");
   EXPECT_EQ(r.exit_code, 3) << r.out << r.err;
   EXPECT_NE(r.err.find("--seed: pose quaternion is not unit length"), std::string::npos) << r.err;
+  // The truth's errors are measured on --truth-robot: a cell of another robot says which to give,
+  // and a robot that cannot be loaded is named.
+  const std::string other = dir + "/other.json";
+  std::ofstream(other) << "{" + T + R"(, "seeds": [[0,0,0, 0,0,0,1]], "joints": {"joint_s": 0.1}})";
+  const auto wrong = arref::testing::RunCommand(kMockPath + " --port 1 --scene " + dir + "/tri.obj --truth " + other);
+  EXPECT_EQ(wrong.exit_code, 3) << wrong.out << wrong.err;
+  EXPECT_NE(wrong.err.find("unknown joint 'joint_s'"), std::string::npos) << wrong.err;
+  EXPECT_NE(wrong.err.find("--truth-robot"), std::string::npos) << wrong.err;
+  const auto missing = arref::testing::RunCommand(kMockPath + " --port 1 --scene " + dir + "/tri.obj --truth " + other +
+                                                  " --truth-robot " + dir + "/none.urdf");
+  EXPECT_EQ(missing.exit_code, 3) << missing.out << missing.err;
+  EXPECT_NE(missing.err.find("--truth-robot"), std::string::npos) << missing.err;
+  EXPECT_NE(missing.err.find("none.urdf"), std::string::npos) << missing.err;
 }
 
 // Each misbehaviour flag of the mock headset executable gets a clear error (or a logged

@@ -56,8 +56,16 @@ struct Measurement {
   // What the tracker decides on: the agreement, or in a wrapped frame (where depth behind the
   // model may be an occluder aliased there) the coverage.
   double support = 0.0;
+  // The coverage of the pixels whose depth can be read (agreeing, seen through or occluded; not
+  // the ambiguous ones of a wrapped frame): the same as the coverage in an unwrapped frame.
+  double readable = 0.0;
   double start_support = 0.0;  // the support of the pose the fit started from
+  double start_agreement = 0.0, start_readable = 0.0;
+  // At the start pose the model is in view with depth, but hidden: no pixel agrees and none is
+  // seen through (all occluded or ambiguous), so the frame says nothing about that pose.
+  bool start_hidden = false;
   std::size_t model_points = 0, depth_points = 0;
+  std::size_t agree = 0, through = 0, occluded = 0, ambiguous = 0, resolved = 0;  // pixel classes at the fit
 };
 
 // A sensor whose depth wraps (AHAT, modulo about 1 m): depth behind the model and an occluder
@@ -69,6 +77,15 @@ float Unwrapped(float d, float expected, double wrap_m) {
   if (wrap_m <= 0 || d <= 0) return d;
   const double k = std::round((expected - d) / wrap_m);
   return static_cast<float>(d + std::max(0.0, k) * wrap_m);
+}
+
+std::string Describe(const Measurement& m) {
+  const Vec3 t = m.T_world_base.translation();
+  return fmt::format("fits {} agreement {:.2f} coverage {:.2f} readable {:.2f} support {:.2f} (start {:.2f}{}), pixels: "
+                     "{} agree, {} through ({} resolved), {} occluded, {} ambiguous; at ({:.3f}, {:.3f}, {:.3f})",
+                     m.fits, m.agreement, m.coverage, m.readable, m.support, m.start_support,
+                     m.start_hidden ? ", hidden" : "", m.agree, m.through, m.resolved, m.occluded, m.ambiguous, t.x(),
+                     t.y(), t.z());
 }
 
 }  // namespace
@@ -90,10 +107,17 @@ struct Tracker::Impl {
   std::optional<PoseFilter> candidate;
   int candidate_frames = 0;
   bool candidate_from_jump_view = false;  // found at the camera's view of a jump (coverage bar)
+  // A fit has been fused since the filter was last (re)started: its pose is then one the frames
+  // have confirmed, not only a re-reference's.
+  bool fused = false;
   // Where the robot is if the world moved with the camera at its last jump: the camera's step
   // across that frame applied to the filtered pose. It stays put in the new world, while a
   // guess from the last fitted frame's camera drifts off with the wearer's walk.
   std::optional<Iso3> jump_guess;
+  // In a wrapped frame, the model as the filter places it, seen from this frame's camera (empty
+  // when there is none): a depth behind another pose's model that the filter's model explains is
+  // the robot seen through that pose, not an occluder aliased there.
+  ModelView reference;
   bool CameraJumped(const DepthFrame& f) const;
 
   int StrideFor(const DepthIntrinsics& c) const {
@@ -102,14 +126,25 @@ struct Tracker::Impl {
   Status PoseModel(const JointValues& given);
   ModelView RenderModel(const DepthFrame& f, const Iso3& T_world_base) const;
   Measurement Measure(const DepthFrame& f, const Iso3& T0, const std::vector<double>& distances, int iterations,
-                      TrackResult* out) const;
+                      TrackResult* out, ModelView* view_out = nullptr) const;
   PointCloud DepthPoints(const DepthFrame& f, const ModelView& view, const Iso3& T_world_base, const Aabb& crop,
                          float occluder_margin = 0) const;
-  struct Agreement { double agreement = 0.0, coverage = 0.0, support = 0.0; };
-  Agreement AgreementAt(const DepthFrame& f, const ModelView& view, const Iso3& T_world_base) const;
+  struct Agreement {
+    double agreement = 0.0, coverage = 0.0, support = 0.0, readable = 0.0;
+    std::size_t agree = 0, through = 0, occluded = 0, ambiguous = 0, resolved = 0;
+  };
+  // In a wrapped frame an ambiguous pixel whose depth `other` (another pose's model, seen from
+  // this frame's camera) explains is the robot seen through this pose: counted as seen through.
+  Agreement AgreementAt(const DepthFrame& f, const ModelView& view, const Iso3& T_world_base,
+                        const ModelView* other = nullptr) const;
+  bool ExplainedBy(const ModelView& other, const DepthFrame& f, int u, int v) const;
+  // The camera's view at a jump is held to the coverage of its readable pixels: in a wrapped frame
+  // an occluder near the camera reads, aliased, as depth behind a hidden arm (the KR5 arc's dev
+  // stream 5 in AHAT frames: 6,000 of 9,000 visible model pixels), which says nothing about the
+  // pose. (In an unwrapped frame the two coverages are the same.)
   bool Reacquires(const Measurement& m, bool jump_view = false) const {
     return m.agreement >= settings.min_reacquire_agreement &&
-           m.coverage >= (jump_view ? settings.min_jump_view_coverage : settings.min_reacquire_coverage);
+           (jump_view ? m.readable >= settings.min_jump_view_coverage : m.coverage >= settings.min_reacquire_coverage);
   }
   Mat4 Covariance(const PointCloud& source, const TargetCloud& target, const Iso3& T_base_world) const;
   std::optional<Iso3> GridSearch(const DepthFrame& f, const std::vector<Iso3>& guesses, TrackResult* out) const;
@@ -163,10 +198,10 @@ PointCloud Tracker::Impl::DepthPoints(const DepthFrame& f, const ModelView& view
 // T_world_base, of those that agree or that the depth sees through (a depth nearer than the
 // model is an occluder, and says nothing).
 Tracker::Impl::Agreement Tracker::Impl::AgreementAt(const DepthFrame& f, const ModelView& view,
-                                                    const Iso3& T_world_base) const {
+                                                    const Iso3& T_world_base, const ModelView* other) const {
   const DepthIntrinsics& c = f.intrinsics;
   const Eigen::Isometry3f T_camera_base = (f.T_world_camera.inverse() * T_world_base).cast<float>();
-  std::size_t agree = 0, through = 0, occluded = 0, ambiguous = 0;
+  std::size_t agree = 0, through = 0, occluded = 0, ambiguous = 0, resolved = 0;
   for (const Vec3f& p : view.points_base.points) {
     const Vec3f q = T_camera_base * p;
     if (q.z() <= 0.05f) continue;
@@ -180,14 +215,34 @@ Tracker::Impl::Agreement Tracker::Impl::AgreementAt(const DepthFrame& f, const M
     // A wrapping sensor cannot tell depth behind the model from an occluder more than half a
     // wrap in front of it (aliased behind): only when that nearer alias would lie behind the
     // camera is the model seen through.
-    else if (d > q.z()) ++(Wraps(f) && d - f.wrap_m > 0 ? ambiguous : through);
-    else ++occluded;
+    else if (d > q.z()) {
+      if (!Wraps(f) || d - f.wrap_m <= 0) ++through;
+      else if (other && ExplainedBy(*other, f, u, v)) ++through, ++resolved;
+      else ++ambiguous;
+    } else {
+      ++occluded;
+    }
   }
   Agreement a;
   a.agreement = agree + through ? static_cast<double>(agree) / static_cast<double>(agree + through) : 0.0;
   a.coverage = agree ? static_cast<double>(agree) / static_cast<double>(agree + through + occluded + ambiguous) : 0.0;
+  a.readable = agree ? static_cast<double>(agree) / static_cast<double>(agree + through + occluded) : 0.0;
   a.support = Wraps(f) ? a.coverage : a.agreement;
+  a.agree = agree, a.through = through, a.occluded = occluded, a.ambiguous = ambiguous, a.resolved = resolved;
   return a;
+}
+
+
+// Whether the depth at pixel (u, v) lies where the model of `other` has its surface (read at the
+// alias nearest that model's depth there).
+bool Tracker::Impl::ExplainedBy(const ModelView& other, const DepthFrame& f, int u, int v) const {
+  if (other.z_depth.empty()) return false;
+  const int s = other.stride, gw = other.width / s, gh = other.height / s;
+  const int gu = std::clamp((u + s / 2) / s, 0, gw - 1), gv = std::clamp((v + s / 2) / s, 0, gh - 1);
+  const float z = other.z_depth[static_cast<std::size_t>(gv) * gw + gu];
+  if (z <= 0) return false;
+  const float d = Unwrapped(f.DepthAt(u, v), z, f.wrap_m);
+  return d > 0 && std::abs(d - z) < settings.agree_m + settings.agree_range_fraction * z;
 }
 
 // ICP's 4-DoF covariance at the fit, mapped from its perturbation of T_base_world to the
@@ -234,12 +289,19 @@ ModelView Tracker::Impl::RenderModel(const DepthFrame& f, const Iso3& T_world_ba
 }
 
 Measurement Tracker::Impl::Measure(const DepthFrame& f, const Iso3& T0, const std::vector<double>& distances,
-                                   int iterations, TrackResult* out) const {
+                                   int iterations, TrackResult* out, ModelView* view_out) const {
   Measurement m;
   LapTimer lap;
   const ModelView view = RenderModel(f, T0);
+  if (view_out) *view_out = view;
   m.model_points = view.points_base.size();
-  m.start_support = AgreementAt(f, view, T0).support;
+  // Another pose than the filter's is measured with its ambiguous pixels read against the filter's
+  // model (Process sets `reference` once the filter's own measurements are done).
+  const ModelView* other = reference.z_depth.empty() ? nullptr : &reference;
+  const Agreement start = AgreementAt(f, view, T0, other);
+  m.start_support = start.support;
+  m.start_agreement = start.agreement, m.start_readable = start.readable;
+  m.start_hidden = start.agree + start.through == 0 && start.occluded + start.ambiguous > 0;
   Aabb crop = view.bounds_base.Grown(static_cast<float>(settings.crop_margin_m));
   crop.min.z() = view.bounds_base.min.z() + static_cast<float>(settings.floor_clearance_m);
   // Near the start pose the robot's surface lies within the crop margin of the model's; depth
@@ -261,8 +323,9 @@ Measurement Tracker::Impl::Measure(const DepthFrame& f, const Iso3& T0, const st
   if (!fit.ok() || fit->correspondences < settings.min_model_points / 2) return m;
   // The base stays gravity-aligned: 4-DoF steps keep roll and pitch as the prediction had them.
   m.T_world_base = StateToPose(PoseToState(fit->T_target_source.inverse()));
-  const Agreement a = AgreementAt(f, view, m.T_world_base);
-  m.agreement = a.agreement, m.coverage = a.coverage, m.support = a.support;
+  const Agreement a = AgreementAt(f, view, m.T_world_base, other);
+  m.agreement = a.agreement, m.coverage = a.coverage, m.support = a.support, m.readable = a.readable;
+  m.agree = a.agree, m.through = a.through, m.occluded = a.occluded, m.ambiguous = a.ambiguous, m.resolved = a.resolved;
   m.covariance = Covariance(source, target, m.T_world_base.inverse());
   // ICP's covariance counts every depth point near a model point, an occluder's too; when only
   // a share of the visible model agrees with the depth, the robot's own pixels are that much
@@ -312,7 +375,7 @@ std::optional<Iso3> Tracker::Impl::GridSearch(const DepthFrame& f, const std::ve
   double best_agreement = -1;
   for (std::size_t i = 0; i < std::min<std::size_t>(3, candidates.size()); ++i) {
     const Measurement m = Measure(f, StateToPose(PoseToState(candidates[i].T)), {0.06, 0.025}, settings.icp_iterations, out);
-    spdlog::debug("tracker: search candidate {}: agreement {:.2f}, coverage {:.2f}", i, m.agreement, m.coverage);
+    spdlog::debug("tracker: search candidate {}: {}", i, Describe(m));
     if (Reacquires(m) && m.support > best_agreement)
       best = m.T_world_base, best_agreement = m.support;
   }
@@ -340,6 +403,7 @@ void Tracker::Seed(const Iso3& T_world_base) {
   impl_->last_T_world_camera.reset();
   impl_->candidate.reset();
   impl_->jump_guess.reset();
+  impl_->fused = false;
 }
 
 bool Tracker::seeded() const { return impl_->seed.has_value() || impl_->filter.initialised(); }
@@ -370,12 +434,14 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
       I.lost_frames = 0;
     }
     if (state == TrackState::kReacquired || state == TrackState::kJump) I.candidate.reset(), I.jump_guess.reset();
+    I.reference = ModelView();
     I.previous_camera = {frame.time_s, frame.T_world_camera};
     out.total_ms = MsSince(start);
     return out;
   };
   auto restart = [&](const Measurement& m) {
     I.filter.Reset(PoseToState(m.T_world_base), m.covariance, frame.time_s);
+    I.fused = false;
     out.T_world_base_measured = m.T_world_base;
     out.agreement = m.support;
     return finish(TrackState::kReacquired);
@@ -384,29 +450,78 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
   const bool tracking = I.filter.initialised();
   const Iso3 predicted = tracking ? StateToPose(I.filter.state()) : *I.seed;
   ++out.hypotheses;
-  const Measurement m = I.Measure(frame, predicted, tracking ? s.icp_distances_m : wide, s.icp_iterations, &out);
+  // A world jump is pending from a camera jump (this frame's, or one not yet re-referenced): the
+  // filter's pose is then known to be stale.
+  const bool jump_pending = I.CameraJumped(frame) || I.jump_guess.has_value();
+  ModelView filter_view;
+  const Measurement m = I.Measure(frame, predicted, tracking ? s.icp_distances_m : wide, s.icp_iterations, &out,
+                                  tracking && Wraps(frame) && !jump_pending ? &filter_view : nullptr);
   out.model_points = m.model_points, out.depth_points = m.depth_points, out.agreement = m.support;
+  if (spdlog::should_log(spdlog::level::debug)) spdlog::debug("tracker: fit: {}", Describe(m));
   // How well the filter explains this frame: at its pose, or by this frame's fit if it takes it.
   auto in_gate = [&](const Measurement& x) {
     return x.fits && I.filter.Mahalanobis2(PoseToState(x.T_world_base), x.covariance, frame.time_s) <= s.filter.gate_chi2;
   };
   double explained = m.start_support;
+  // ... and how little the frame contradicts it (its agreement), and its readable coverage.
+  double explained_agreement = m.start_agreement, explained_readable = m.start_readable;
+  // In a wrapped frame, the filter's pose hidden (every visible model pixel occluded or
+  // ambiguous) with no camera jump pending: nothing in the frame speaks against it, so it
+  // explains the frame as well as any pose can, and holds. Its coverage (0) would hand the frame
+  // to any pose laid on the occluder (the MH5's dev stream 3 in AHAT frames, 4.9-6 s: the arm 97 %
+  // hidden, a search pose 0.3 m off agreeing with 3,200 pixels of the occluder).
+  const bool hidden = Wraps(frame) && tracking && !jump_pending && m.start_hidden;
+  if (hidden) explained = 1.0, explained_agreement = 1.0;
   if (tracking && in_gate(m)) {
     explained = std::max(explained, m.support);
+    explained_agreement = std::max(explained_agreement, m.agreement);
+    explained_readable = std::max(explained_readable, m.readable);
   } else if (tracking && explained < 1.0) {
     // The fit left the filter's basin (or failed): the filter's pose refined locally, so that the
     // frame's own camera-pose error (which shifts a thin arm's silhouette by pixels) counts
     // against neither side.
     ++out.hypotheses;
     const Measurement local = I.Measure(frame, predicted, {s.icp_distances_m.back()}, s.icp_iterations, &out);
-    if (in_gate(local)) explained = std::max(explained, local.support);
+    if (in_gate(local)) {
+      explained = std::max(explained, local.support);
+      explained_agreement = std::max(explained_agreement, local.agreement);
+      explained_readable = std::max(explained_readable, local.readable);
+    }
+    if (spdlog::should_log(spdlog::level::debug)) spdlog::debug("tracker: local: {}", Describe(local));
   }
   out.agreement_filtered = explained;
+  // In a wrapped frame every other pose is measured against the filter's model from here on
+  // (not when a jump is pending: the filter's model then stands where the robot was).
+  I.reference = std::move(filter_view);
+
+  // The agreement of the camera's view at a pending jump, once measured in this frame (1 when
+  // hidden, as for the filter above).
+  std::optional<double> jump_view_agreement;
   auto clearly_better = [&](const Measurement& x, bool jump_view = false) {
-    return I.Reacquires(x, jump_view) && x.support >= explained + s.rereference_margin;
+    if (!I.Reacquires(x, jump_view)) return false;
+    if (Wraps(frame)) {
+      // Coverage counts occluded pixels against a pose, so a pose found by search wins wherever
+      // more of the scene looks like the robot than of the robot is in view: the MH5's dev
+      // stream 3 (the arm 50-97 % behind a prop; search poses 0.2-0.3 m off laid on the prop
+      // covered 0.6-0.8 against the true pose's 0.02-0.47, which nothing saw through). So in a
+      // wrapped frame a pose found by search must also be contradicted (seen through, with its
+      // ambiguous pixels read against the filter's model) no more than the pose the tracker
+      // already has: the filter's; strictly less once a fit has been fused since the filter's
+      // last (re)start (a pose only a re-reference gave, such as a camera's view 10 cm off in
+      // the built-in robot's dev stream 1, keeps no such tie); and at a pending jump strictly
+      // less than the camera's view (head tracking's guess, 1 when hidden).
+      const bool beats_filter =
+          I.fused ? x.agreement > explained_agreement : x.agreement >= explained_agreement;
+      if (!jump_view && !jump_pending && !beats_filter) return false;
+      if (!jump_view && jump_view_agreement && !(x.agreement > *jump_view_agreement)) return false;
+      // The camera's view at a jump is compared on its readable coverage, as its bar (Reacquires).
+      if (jump_view) return x.readable >= explained_readable + s.rereference_margin;
+    }
+    return x.support >= explained + s.rereference_margin;
   };
   auto adopt_candidate = [&](const Measurement& c) {
     I.filter = std::move(*I.candidate);
+    I.fused = false;
     I.candidate.reset();
     I.seed.reset();
     out.T_world_base_measured = c.T_world_base;
@@ -418,6 +533,7 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
   if (I.candidate) {
     ++out.hypotheses;
     const Measurement c = I.Measure(frame, StateToPose(I.candidate->state()), s.icp_distances_m, s.icp_iterations, &out);
+    spdlog::debug("tracker: candidate: {}", Describe(c));
     if (clearly_better(c, I.candidate_from_jump_view) && I.candidate->Update(PoseToState(c.T_world_base), c.covariance, frame.time_s, false) ==
                                  FilterVerdict::kAccepted) {
       if (++I.candidate_frames >= s.confirm_frames) {
@@ -436,7 +552,8 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
   if (m.model_points < s.min_model_points && !jumped) return finish(TrackState::kNoRobot);
   // No fit, but the filter's pose still explains the frame (the depth near it too sparse or
   // mostly an occluder for ICP): the pose holds, and nothing is searched.
-  if (!m.fits && tracking && !jumped && m.start_support >= s.min_reacquire_agreement) return finish(TrackState::kTracking);
+  if (!m.fits && tracking && !jumped && (m.start_support >= s.min_reacquire_agreement || hidden))
+    return finish(TrackState::kTracking);
   if (m.fits) {
     out.T_world_base_measured = m.T_world_base;
     if (!tracking) {
@@ -455,6 +572,7 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
       return finish(TrackState::kTracking);
     // Rejected measurements become a world jump only while they explain the frames clearly better.
     const FilterVerdict v = I.filter.Update(PoseToState(m.T_world_base), m.covariance, frame.time_s, clearly_better(m));
+    I.fused = v == FilterVerdict::kAccepted || (I.fused && v == FilterVerdict::kRejected);
     return finish(v == FilterVerdict::kRejected ? TrackState::kRejected
                   : v == FilterVerdict::kJump   ? TrackState::kJump
                                                 : TrackState::kTracking);
@@ -495,20 +613,21 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
     ++out.hypotheses;
     Measurement r = I.Measure(frame, *relative, s.icp_distances_m, s.icp_iterations, &out);
     bool jump_view = I.jump_guess.has_value();  // the relaxed coverage bar holds for this fit only
+    if (jump_view && Wraps(frame))
+      jump_view_agreement = r.start_hidden ? 1.0 : std::max(r.start_agreement, r.fits ? r.agreement : 0.0);
     if (!I.Reacquires(r, jump_view)) {
       ++out.hypotheses;
       r = I.Measure(frame, *relative, wide, s.icp_iterations, &out);
       jump_view = false;
     }
-    spdlog::debug("tracker: the camera's view{}: agreement {:.2f}, coverage {:.2f}, {} model / {} depth points",
-                  I.jump_guess ? " at the jump" : "", r.agreement, r.coverage, r.model_points, r.depth_points);
+    spdlog::debug("tracker: the camera's view{}: {}", I.jump_guess ? " at the jump" : "", Describe(r));
     if (I.Reacquires(r, jump_view))
       if (auto result = found(r, "from the camera's view", jump_view)) return *result;
     guesses.push_back(*relative);
   }
   if (const auto pose = I.GridSearch(frame, guesses, &out)) {
     const Measurement refined = I.Measure(frame, *pose, s.icp_distances_m, s.icp_iterations, &out);
-    spdlog::debug("tracker: search: agreement {:.2f}, coverage {:.2f}", refined.agreement, refined.coverage);
+    spdlog::debug("tracker: search: {}", Describe(refined));
     if (I.Reacquires(refined))
       if (auto result = found(refined, fmt::format("by a search of {} poses", out.hypotheses).c_str())) return *result;
   }

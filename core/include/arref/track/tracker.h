@@ -22,7 +22,7 @@ namespace arref {
 struct TrackerSettings {
   double max_range_m = 5.0;
   // Traced every stride-th pixel in u and v, for the model and the depth alike; 0: chosen from
-  // the image width (2 at 320, 3 at 512).
+  // the image width (2 at 320, 4 at 512).
   int stride = 0;
   std::size_t dense_below_points = 1000;  // fewer model points at that stride: every pixel
   std::size_t max_source_points = 2500;  // depth points per ICP

@@ -268,6 +268,20 @@ std::shared_ptr<const RobotModel> SharedRobot(const std::string& urdf) {
   return std::make_shared<const RobotModel>(std::move(*loaded));
 }
 
+// One of the bench's 12 s AHAT dev streams (the jump half way) of a vendor robot, by its
+// simulator seed; no frames scored when the robot does not load.
+StreamOutcome AhatDevStream(const std::string& urdf, std::uint64_t seed) {
+  auto robot = SharedRobot(urdf);
+  if (!robot) {
+    ADD_FAILURE() << urdf << " does not load";
+    return {};
+  }
+  sim::TrackSimOptions options;
+  options.kind = sim::FrameKind::kAhat;
+  options.duration_s = 12.0;
+  return RunStream(robot, options, seed);
+}
+
 // The MH5's dev stream 3 in AHAT frames (the bench's simulator seed): from 3.8 s the arm is half
 // to wholly hidden behind a prop, its true pose agreeing with every pixel it shows but covering
 // 0.02-0.47 of its visible model. Poses 0.2-0.3 m off laid on the prop covered 0.6-0.8 and
@@ -276,12 +290,7 @@ std::shared_ptr<const RobotModel> SharedRobot(const std::string& urdf) {
 // through), and a wholly hidden filter pose holds.
 TEST(Tracker, HoldsAnArmHiddenBehindAPropInWrappedDepth) {
   ARREF_REQUIRE_SHARED();
-  auto robot = SharedRobot("motoman_mh5_support/urdf/mh5.urdf");
-  ASSERT_TRUE(robot);
-  sim::TrackSimOptions options;
-  options.kind = sim::FrameKind::kAhat;
-  options.duration_s = 12.0;  // the jump half way, as the bench's streams
-  const StreamOutcome o = RunStream(robot, options, 3349603588497037793ull);
+  const StreamOutcome o = AhatDevStream("motoman_mh5_support/urdf/mh5.urdf", 3349603588497037793ull);
   ASSERT_GT(o.scored, 400);
   EXPECT_EQ(o.rereferences_before_jump, 0);
   EXPECT_GE(o.recovery_s, 0.0) << "never recovered from the jump";
@@ -295,12 +304,7 @@ TEST(Tracker, HoldsAnArmHiddenBehindAPropInWrappedDepth) {
 // readable coverage (ambiguous pixels left out) is 0.44-0.53.
 TEST(Tracker, TakesTheCameraViewOfAnArmHiddenByANearOccluder) {
   ARREF_REQUIRE_SHARED();
-  auto robot = SharedRobot("kuka_kr5_support/urdf/kr5_arc.urdf");
-  ASSERT_TRUE(robot);
-  sim::TrackSimOptions options;
-  options.kind = sim::FrameKind::kAhat;
-  options.duration_s = 12.0;
-  const StreamOutcome o = RunStream(robot, options, 2894739381230229186ull);
+  const StreamOutcome o = AhatDevStream("kuka_kr5_support/urdf/kr5_arc.urdf", 2894739381230229186ull);
   ASSERT_GT(o.scored, 400);
   EXPECT_EQ(o.rereferences_before_jump, 0);
   EXPECT_GE(o.recovery_s, 0.0) << "never recovered from the jump";

@@ -232,7 +232,6 @@ Tracker::Impl::Agreement Tracker::Impl::AgreementAt(const DepthFrame& f, const M
   return a;
 }
 
-
 // Whether the depth at pixel (u, v) lies where the model of `other` has its surface (read at the
 // alias nearest that model's depth there).
 bool Tracker::Impl::ExplainedBy(const ModelView& other, const DepthFrame& f, int u, int v) const {

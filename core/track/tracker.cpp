@@ -9,6 +9,7 @@
 #include <algorithm>
 #include <cmath>
 #include <numbers>
+#include <string_view>
 
 #include "arref/base/clock.h"
 #include "arref/icp/fast_icp.h"
@@ -86,6 +87,12 @@ std::string Describe(const Measurement& m) {
                      m.fits, m.agreement, m.coverage, m.readable, m.support, m.start_support,
                      m.start_hidden ? ", hidden" : "", m.agree, m.through, m.resolved, m.occluded, m.ambiguous, t.x(),
                      t.y(), t.z());
+}
+
+// A pose's measurement in the debug log, described only when it will be written: the tracker
+// logs every pose it measures, on every frame.
+void LogMeasurement(std::string_view what, const Measurement& m) {
+  if (spdlog::should_log(spdlog::level::debug)) spdlog::debug("tracker: {}: {}", what, Describe(m));
 }
 
 }  // namespace
@@ -374,7 +381,7 @@ std::optional<Iso3> Tracker::Impl::GridSearch(const DepthFrame& f, const std::ve
   double best_agreement = -1;
   for (std::size_t i = 0; i < std::min<std::size_t>(3, candidates.size()); ++i) {
     const Measurement m = Measure(f, StateToPose(PoseToState(candidates[i].T)), {0.06, 0.025}, settings.icp_iterations, out);
-    spdlog::debug("tracker: search candidate {}: {}", i, Describe(m));
+    if (spdlog::should_log(spdlog::level::debug)) LogMeasurement(fmt::format("search candidate {}", i), m);
     if (Reacquires(m) && m.support > best_agreement)
       best = m.T_world_base, best_agreement = m.support;
   }
@@ -456,7 +463,7 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
   const Measurement m = I.Measure(frame, predicted, tracking ? s.icp_distances_m : wide, s.icp_iterations, &out,
                                   tracking && Wraps(frame) && !jump_pending ? &filter_view : nullptr);
   out.model_points = m.model_points, out.depth_points = m.depth_points, out.agreement = m.support;
-  if (spdlog::should_log(spdlog::level::debug)) spdlog::debug("tracker: fit: {}", Describe(m));
+  LogMeasurement("fit", m);
   // How well the filter explains this frame: at its pose, or by this frame's fit if it takes it.
   auto in_gate = [&](const Measurement& x) {
     return x.fits && I.filter.Mahalanobis2(PoseToState(x.T_world_base), x.covariance, frame.time_s) <= s.filter.gate_chi2;
@@ -486,7 +493,7 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
       explained_agreement = std::max(explained_agreement, local.agreement);
       explained_readable = std::max(explained_readable, local.readable);
     }
-    if (spdlog::should_log(spdlog::level::debug)) spdlog::debug("tracker: local: {}", Describe(local));
+    LogMeasurement("local", local);
   }
   out.agreement_filtered = explained;
   // In a wrapped frame every other pose is measured against the filter's model from here on
@@ -532,7 +539,7 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
   if (I.candidate) {
     ++out.hypotheses;
     const Measurement c = I.Measure(frame, StateToPose(I.candidate->state()), s.icp_distances_m, s.icp_iterations, &out);
-    spdlog::debug("tracker: candidate: {}", Describe(c));
+    LogMeasurement("candidate", c);
     if (clearly_better(c, I.candidate_from_jump_view) && I.candidate->Update(PoseToState(c.T_world_base), c.covariance, frame.time_s, false) ==
                                  FilterVerdict::kAccepted) {
       if (++I.candidate_frames >= s.confirm_frames) {
@@ -619,14 +626,14 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
       r = I.Measure(frame, *relative, wide, s.icp_iterations, &out);
       jump_view = false;
     }
-    spdlog::debug("tracker: the camera's view{}: {}", I.jump_guess ? " at the jump" : "", Describe(r));
+    LogMeasurement(I.jump_guess ? "the camera's view at the jump" : "the camera's view", r);
     if (I.Reacquires(r, jump_view))
       if (auto result = found(r, "from the camera's view", jump_view)) return *result;
     guesses.push_back(*relative);
   }
   if (const auto pose = I.GridSearch(frame, guesses, &out)) {
     const Measurement refined = I.Measure(frame, *pose, s.icp_distances_m, s.icp_iterations, &out);
-    spdlog::debug("tracker: search: {}", Describe(refined));
+    LogMeasurement("search", refined);
     if (I.Reacquires(refined))
       if (auto result = found(refined, fmt::format("by a search of {} poses", out.hypotheses).c_str())) return *result;
   }

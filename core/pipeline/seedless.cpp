@@ -240,6 +240,35 @@ Explanation Explain(const PointCloud& map, const PointCloud& model_base, const R
   return e;
 }
 
+// The seedless analogue of arref-icp's margin (ConfidenceThresholds::ok_min_margin). A seeded
+// search compares poses round one place the user chose; a room search tries every candidate base,
+// so a fit on clutter somewhere is expected, and an OK must lead the best of those by the same
+// margin: a robot that fits no better than a shelf elsewhere in the room is not evidence that it
+// stands there. Clutter: fits that fail on their own (FAILED, or LOW_CONFIDENCE and unexplained),
+// away from every OK fit (a failed duplicate of an arm is the same place, not an alternative).
+// A demoted fit becomes LOW_CONFIDENCE and must then explain its place like any other.
+void DemoteOkBelowClutter(std::vector<Result<RegistrationReport>>& fits, const std::vector<Explanation>& explained,
+                          double apart, double min_lead) {
+  auto is_ok = [&](std::size_t i) { return fits[i].ok() && fits[i]->status == ResultStatus::kOk; };
+  double clutter = -1;
+  for (std::size_t i = 0; i < fits.size(); ++i) {
+    if (!fits[i].ok() || is_ok(i)) continue;
+    if (fits[i]->status != ResultStatus::kFailed && explained[i].Holds()) continue;
+    bool near_ok = false;
+    for (std::size_t j = 0; j < fits.size(); ++j)
+      near_ok = near_ok || (is_ok(j) && Horizontal(fits[j]->T_world_base, fits[i]->T_world_base) < apart);
+    if (!near_ok) clutter = std::max(clutter, fits[i]->score);
+  }
+  if (clutter < 0) return;
+  for (std::size_t i = 0; i < fits.size(); ++i) {
+    if (!is_ok(i) || fits[i]->score - clutter >= min_lead) continue;
+    fits[i]->status = ResultStatus::kLowConfidence;
+    fits[i]->status_reason = fmt::format(
+        "ambiguous: a fit on other surfaces of the map scores almost as well (score {:.3f} against {:.3f})",
+        fits[i]->score, clutter);
+  }
+}
+
 int StatusRank(ResultStatus s) { return s == ResultStatus::kOk ? 0 : s == ResultStatus::kLowConfidence ? 1 : 2; }
 
 bool Better(const FoundInstance& a, const FoundInstance& b) {
@@ -385,24 +414,27 @@ Result<WholeMapReport> AutoSearch(const RobotSide& robot, const TriangleMesh& sc
   tbb::parallel_for(std::size_t{0}, distinct.size(), [&](std::size_t i) {
     full[i] = RegisterScene(robot, scene_world, distinct[i].report.T_world_base, each, {}, cancel);
   });
+  for (const auto& f : full)
+    if (!f.ok() && f.status().code() == StatusCode::kCancelled) return f.status();
+  std::vector<Explanation> explained(distinct.size());
+  for (std::size_t i = 0; i < distinct.size(); ++i)
+    if (full[i].ok()) explained[i] = Explain(map, robot.samples(), size, full[i]->T_world_base, on, near);
+  DemoteOkBelowClutter(full, explained, apart, options.confidence.ok_min_margin);
   for (std::size_t i = 0; i < distinct.size(); ++i) {
-    if (!full[i].ok()) {
-      if (full[i].status().code() == StatusCode::kCancelled) return full[i].status();
-      continue;
-    }
-    if (full[i]->status == ResultStatus::kFailed) continue;
+    if (!full[i].ok() || full[i]->status == ResultStatus::kFailed) continue;
     const bool duplicate = std::any_of(out.instances.begin(), out.instances.end(), [&](const FoundInstance& o) {
       return Horizontal(o.report.T_world_base, full[i]->T_world_base) < apart;
     });
-    const Explanation e = Explain(map, robot.samples(), size, full[i]->T_world_base, on, near);
+    const Explanation& e = explained[i];
     spdlog::debug("arref-auto: instance at ({:.2f}, {:.2f}): {} inliers {:.3f} score {:.3f} margin {:.3f} detection {:.3f} "
                   "explained {:.3f} of {} (bar {:.3f}){}",
                   full[i]->T_world_base.translation().x(), full[i]->T_world_base.translation().y(),
                   ResultStatusName(full[i]->status), full[i]->inlier_fraction, full[i]->score, full[i]->margin,
                   distinct[i].detection_score, e.share, e.near, e.Bar(), duplicate ? " (duplicate)" : "");
     if (e.share > best_share) best_share = e.share, best_bar = e.Bar();
-    // An OK fit has passed arref-icp's margin and coverage; a LOW_CONFIDENCE one is a maybe, and
-    // with several candidates per room a maybe on clutter is likely, so it must explain its place.
+    // An OK fit has passed arref-icp's margin and coverage and leads the room's clutter; a
+    // LOW_CONFIDENCE one is a maybe, and with several candidates per room a maybe on clutter is
+    // likely, so it must explain its place.
     if (full[i]->status != ResultStatus::kOk && !e.Holds()) {
       ++unexplained;
       continue;

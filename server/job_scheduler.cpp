@@ -1,6 +1,7 @@
 #include "job_scheduler.h"
 
 #include <spdlog/spdlog.h>
+#include <tbb/task_arena.h>
 
 #include <algorithm>
 #include <new>
@@ -157,7 +158,7 @@ void JobScheduler::Join() {
   threads_.clear();
 }
 
-std::shared_ptr<Job> JobScheduler::Pop(double* waited_ms, SessionWaits* waits) {
+std::shared_ptr<Job> JobScheduler::Pop(double* waited_ms, SessionWaits* waits, bool* cores_shared) {
   std::unique_lock lock(mu_);
   cv_.wait(lock, [this] { return closed_ || queued_ > 0; });
   if (queued_ == 0) return nullptr;
@@ -172,6 +173,7 @@ std::shared_ptr<Job> JobScheduler::Pop(double* waited_ms, SessionWaits* waits) {
   else
     turns_.push_back(session);  // its next job waits for every other session's turn
   running_.push_back(job);
+  *cores_shared = running_.size() > 1 || queued_ > 0;
   *waited_ms = MsSince(job->accepted_at);
   SessionWaits& w = waits_[session];
   ++w.started;
@@ -191,14 +193,23 @@ void JobScheduler::RecordRunMs(double ms) {
 void JobScheduler::WorkerLoop(int index) {
   double waited_ms = 0.0;
   SessionWaits waits;
-  while (auto job = Pop(&waited_ms, &waits)) {
+  bool cores_shared = false;
+  // With other jobs running or waiting, a job's parallel loops run on its own worker alone: the
+  // cores are already busy with other sessions' jobs, and TBB's threads would only contend with
+  // them (a 50-headset soak: about +10 % results/s, docs/architecture.md). A job alone on the
+  // server has every core, so a single request's latency is unchanged.
+  tbb::task_arena serial(1, 1);
+  while (auto job = Pop(&waited_ms, &waits, &cores_shared)) {
     spdlog::info("worker {}: session {} request {} started after {:.0f} ms queued (session: {} started, queue wait "
                  "mean {:.0f} ms, max {:.0f} ms)", index, job->session_id, job->request_id, waited_ms, waits.started,
                  waits.total_ms / static_cast<double>(waits.started), waits.max_ms);
     const auto start = SteadyClock::now();
     JobOutcome outcome;
     try {
-      outcome = runner_(*job);
+      if (cores_shared && workers_ > 1)
+        serial.execute([&] { outcome = runner_(*job); });
+      else
+        outcome = runner_(*job);
     } catch (const std::bad_alloc&) {
       outcome.status = Status::ResourceExhausted(
                               "out of memory while registering (std::bad_alloc); the server keeps serving");

@@ -117,7 +117,7 @@ class JobScheduler {
   };
 
   void WorkerLoop(int index);
-  std::shared_ptr<Job> Pop(double* waited_ms, SessionWaits* waits);
+  std::shared_ptr<Job> Pop(double* waited_ms, SessionWaits* waits, bool* cores_shared);
   std::size_t PositionOf(std::uint64_t session_id) const;  // of the session's last queued job
   void EraseQueued(std::uint64_t session_id, std::deque<std::shared_ptr<Job>>::iterator it);
   void RecordRunMs(double ms);

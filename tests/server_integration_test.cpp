@@ -183,6 +183,40 @@ class ScriptedHeadset {
 
 // ---------------------------------------------------------------- accuracy
 
+// A test that dies without running destructors (a sanitizer's halt_on_error, a crash) must not
+// leave its server running: ServerProcess has the server killed when the test process dies.
+TEST(ServerIntegration, AServerDiesWithTheTestProcessThatStartedIt) {
+  int fds[2];
+  ASSERT_EQ(pipe(fds), 0);
+  const pid_t test = fork();
+  ASSERT_GE(test, 0);
+  if (test == 0) {  // stands in for a test process that dies: no destructor runs
+    close(fds[0]);
+    ServerProcess server;
+    const pid_t pid = server.pid();
+    _exit(write(fds[1], &pid, sizeof pid) == sizeof pid ? 0 : 1);
+  }
+  close(fds[1]);
+  pid_t server = -1;
+  const bool read_pid = read(fds[0], &server, sizeof server) == sizeof server;
+  close(fds[0]);
+  int status = 0;
+  waitpid(test, &status, 0);
+  ASSERT_TRUE(read_pid && server > 0) << "the stand-in test did not start its server";
+  // Gone, or a zombie no one has reaped yet (in a container without an init that reaps).
+  auto running = [&] {
+    std::ifstream stat("/proc/" + std::to_string(server) + "/stat");
+    std::string text((std::istreambuf_iterator<char>(stat)), std::istreambuf_iterator<char>());
+    const std::size_t close_paren = text.rfind(')');
+    return close_paren != std::string::npos && close_paren + 2 < text.size() && text[close_paren + 2] != 'Z';
+  };
+  const auto deadline = Clock::now() + std::chrono::seconds(10);
+  while (running() && Clock::now() < deadline) std::this_thread::sleep_for(std::chrono::milliseconds(20));
+  const bool orphaned = running();
+  if (orphaned) kill(server, SIGKILL);
+  EXPECT_FALSE(orphaned) << "arref-server " << server << " outlived the test process that started it";
+}
+
 TEST(ServerIntegration, RecoversTruePoseFromUserLikeSeeds) {
   ServerProcess server;
   int ok = 0, total = 0;

@@ -5,13 +5,15 @@
 #include <fcntl.h>
 #include <poll.h>
 #include <signal.h>
-#include <spawn.h>
+#include <sys/prctl.h>
 #include <sys/wait.h>
 #include <unistd.h>
 
 #include <gtest/gtest.h>
 
+#include <cerrno>
 #include <chrono>
+#include <cstring>
 #include <cstdint>
 #include <filesystem>
 #include <fstream>
@@ -101,20 +103,31 @@ class ServerProcess {
   }
 
  private:
+  // fork + exec rather than posix_spawn, so that the child can ask for SIGKILL when the test
+  // process dies (PR_SET_PDEATHSIG): a test that aborts (a sanitizer's halt_on_error, a crash)
+  // runs no destructor, and its server would otherwise live on. Between fork and exec the child
+  // calls only async-signal-safe functions, everything it needs prepared before the fork.
   void Spawn() {
     int out[2];
     ASSERT_EQ(pipe(out), 0);
-    posix_spawn_file_actions_t actions;
-    posix_spawn_file_actions_init(&actions);
-    posix_spawn_file_actions_adddup2(&actions, out[1], STDOUT_FILENO);
-    posix_spawn_file_actions_addclose(&actions, out[0]);
-    posix_spawn_file_actions_addopen(&actions, STDERR_FILENO, log_path_.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
     std::vector<std::string> args{kServerPath, "--config", config_path_, "--port", "0", "--address", "127.0.0.1"};
     std::vector<char*> argv;
     for (auto& a : args) argv.push_back(a.data());
     argv.push_back(nullptr);
-    ASSERT_EQ(posix_spawn(&pid_, kServerPath.c_str(), &actions, nullptr, argv.data(), environ), 0) << kServerPath;
-    posix_spawn_file_actions_destroy(&actions);
+    const pid_t parent = getpid();
+    pid_ = fork();
+    ASSERT_GE(pid_, 0) << "fork: " << std::strerror(errno);
+    if (pid_ == 0) {
+      prctl(PR_SET_PDEATHSIG, SIGKILL);
+      if (getppid() != parent) _exit(127);  // the test died before prctl took effect
+      dup2(out[1], STDOUT_FILENO);
+      close(out[0]);
+      close(out[1]);
+      const int log = open(log_path_.c_str(), O_WRONLY | O_CREAT | O_TRUNC, 0644);
+      if (log >= 0) dup2(log, STDERR_FILENO);
+      execve(kServerPath.c_str(), argv.data(), environ);
+      _exit(127);
+    }
     close(out[1]);
     stdout_fd_ = out[0];
     ReadPort();

@@ -309,9 +309,11 @@ int RunTrack(Args& args) {
   for (const auto& e : run.errors) std::cout << "server error " << wire::ErrorCodeName(e.code()) << ": " << e.message() << "\n";
   std::vector<double> add, client_ms, server_ms, process_ms;
   int scored = 0, within = 0;
-  for (const auto& u : run.updates) {
+  const std::vector<bool> settled = SettledUpdates(run);
+  for (std::size_t i = 0; i < run.updates.size(); ++i) {
+    const TrackUpdateRecord& u = run.updates[i];
     client_ms.push_back(u.latency_ms), server_ms.push_back(u.server_latency_ms), process_ms.push_back(u.process_ms);
-    if (u.true_time_s < 1.0 || (u.after_jump && u.true_time_s < run.jump_time_s + 1.0)) continue;
+    if (!settled[i]) continue;
     ++scored, within += u.add_mm < 10;
     add.push_back(u.add_mm);
   }

@@ -92,6 +92,7 @@ TrackHeadsetRun RunTrackingHeadset(const TrackHeadsetOptions& o) {
   auto simulator = sim::TrackSimulator::Create(robot, so, o.rng_seed);
   if (!simulator.ok()) return fail(simulator.status());
   out.jump_time_s = simulator->jump_time_s();
+  out.frames_per_s = simulator->frame_count() / so.duration_s;
   const std::vector<Vec3f> add_points = SampleSurface(*robot->PosedMesh({}), 2000, 1).points;
 
   Peer headset, sender, watcher;
@@ -203,6 +204,21 @@ TrackHeadsetRun RunTrackingHeadset(const TrackHeadsetOptions& o) {
     }
   out.status = Status::Ok();
   return out;
+}
+
+std::vector<bool> SettledUpdates(const TrackHeadsetRun& run) {
+  const int second_of_frames = static_cast<int>(std::lround(run.frames_per_s));
+  std::vector<bool> settled(run.updates.size(), false);
+  int since_start = 0, since_jump = 0;
+  for (std::size_t i = 0; i < run.updates.size(); ++i) {
+    const TrackUpdateRecord& u = run.updates[i];
+    ++since_start;
+    if (u.after_jump) ++since_jump;
+    const bool warm = u.true_time_s >= 1.0 && since_start > second_of_frames;
+    const bool recovered = !u.after_jump || (u.true_time_s >= run.jump_time_s + 1.0 && since_jump > second_of_frames);
+    settled[i] = warm && recovered;
+  }
+  return settled;
 }
 
 }  // namespace arref::headset

@@ -51,9 +51,16 @@ struct TrackHeadsetRun {
   int subscriber_updates = 0;
   double reported_offset_error_s = 0.0;  // the headset's clock report against the truth
   double jump_time_s = 0.0;
+  double frames_per_s = 0.0;  // the stream's frame rate
   std::vector<pb::Error> errors;
 };
 
 TrackHeadsetRun RunTrackingHeadset(const TrackHeadsetOptions& options);
+
+// Which of run.updates count as settled (the "after the first second", and a jump's
+// "within 1 s of frames"): an update from the stream's second second on, and from the jump's,
+// once the server has also processed a second's worth of frames since. A server under load
+// drops frames, and the filter settles over the frames it processed, not over wall time.
+std::vector<bool> SettledUpdates(const TrackHeadsetRun& run);
 
 }  // namespace arref::headset

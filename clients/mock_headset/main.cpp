@@ -327,6 +327,11 @@ int RunTrack(Args& args) {
       "{:.1f} p95 {:.1f}; processing median {:.1f} p95 {:.1f}; clock offset error {:.2f} ms; subscriber got {}\n",
       run.frames_sent, run.updates.size(), run.frames_dropped, within, scored, add_med, add_p95, c_med, c_p95, s_med,
       s_p95, p_med, p_p95, 1000 * run.reported_offset_error_s, run.subscriber_updates);
+  if (scored == 0) {
+    std::cout << "FAILED: no settled update to score (a second of processed frames after the start and after the "
+                 "jump): the server dropped too many frames, or the stream is too short\n";
+    return 1;
+  }
   return within >= 0.95 * scored ? 0 : 1;
 }
 

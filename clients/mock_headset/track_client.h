@@ -58,9 +58,10 @@ struct TrackHeadsetRun {
 TrackHeadsetRun RunTrackingHeadset(const TrackHeadsetOptions& options);
 
 // Which of run.updates count as settled (the "after the first second", and a jump's
-// "within 1 s of frames"): an update from the stream's second second on, and from the jump's,
-// once the server has also processed a second's worth of frames since. A server under load
-// drops frames, and the filter settles over the frames it processed, not over wall time.
+// "within 1 s of frames"): an update at least 1 s past the stream's start, and past the jump when
+// it follows it, once the server has also processed more than a second's worth of frames since
+// each. A server under load drops frames, and the filter settles over the frames it processed,
+// not over wall time.
 std::vector<bool> SettledUpdates(const TrackHeadsetRun& run);
 
 }  // namespace arref::headset

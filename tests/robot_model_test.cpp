@@ -245,6 +245,56 @@ TEST(MeshFile, MalformedPlyHeaderIsAnErrorNotAHang) {
   EXPECT_EQ(fine.triangles.size(), 1u);
 }
 
+// Assimp 5.2's PLY reader allocated until the process died on this 223-byte file (a vertex
+// coordinate of 70 digits, more than a float holds; found by tests/fuzz/mesh_fuzz.cpp). A PLY
+// body is checked against its header first: each value one its type holds, each element's rows
+// all there, each list within the file; the fault is an IO_ERROR naming element, row and value.
+TEST(MeshFile, MalformedPlyBodyIsAnErrorNotAnExhaustedMachine) {
+  const testing::ScopedTempDir tmp;
+  const auto load = [&](const std::string& text) {
+    const std::string path = tmp.path() + "/m.ply";
+    std::ofstream(path, std::ios::binary | std::ios::trunc) << text;
+    return LoadMeshFile(path);
+  };
+  const std::string header = "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
+                             "property float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n";
+  const auto fault = [&](const std::string& body, const std::string& expected) {
+    const auto r = load(header + body);
+    ASSERT_FALSE(r.ok()) << body;
+    EXPECT_EQ(r.status().code(), StatusCode::kIoError);
+    EXPECT_NE(r.status().message().find(expected), std::string::npos) << r.status().message();
+  };
+  fault("0 0 0\n1" + std::string(68, '4') + " 0 t3 2\n",
+        "element 'vertex' row 2 property 1: value '1444");  // the fuzzer's input
+  fault("0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n300 0 1 2\n", "element 'face' row 2 property 1: list count '300' is not a uint8");
+  fault("0 0 0\n1 0 0\n1 1 0\n0 1 nan\n3 0 1 2\n3 0 2 3\n", "row 4 property 3: value 'nan' is not a float32");
+  fault("0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2\n", "PLY body ends in element 'face' row 2 of 2");
+  fault("0 0 0\n1 0 0\n", "PLY body ends in element 'vertex' row 3 of 4");
+  ASSERT_OK_AND_ASSIGN(const TriangleMesh fine, load(header + "0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2 3\n"));
+  EXPECT_EQ(fine.triangles.size(), 2u);
+
+  // Binary: a face whose int count claims 2^31 - 1 indices, in a file of a few bytes.
+  std::string binary = "ply\nformat binary_little_endian 1.0\nelement vertex 3\nproperty float x\n"
+                       "property float y\nproperty float z\nelement face 1\nproperty list int int vertex_indices\nend_header\n";
+  const float xyz[9] = {0, 0, 0, 1, 0, 0, 0, 1, 0};
+  binary.append(reinterpret_cast<const char*>(xyz), sizeof xyz);
+  const std::int32_t face[4] = {3, 0, 1, 2};
+  std::string huge = binary;
+  binary.append(reinterpret_cast<const char*>(face), sizeof face);
+  ASSERT_OK_AND_ASSIGN(const TriangleMesh one, load(binary));
+  EXPECT_EQ(one.triangles.size(), 1u);
+  const std::int32_t claim[2] = {2147483647, 0};
+  huge.append(reinterpret_cast<const char*>(claim), sizeof claim);
+  const auto r = load(huge);
+  ASSERT_FALSE(r.ok());
+  EXPECT_NE(r.status().message().find("PLY body ends in element 'face' row 1 of 1"), std::string::npos)
+      << r.status().message();
+  // Header types are checked too.
+  const auto typo = load("ply\nformat ascii 1.0\nelement vertex 1\nproperty flaot x\nend_header\n0\n");
+  ASSERT_FALSE(typo.ok());
+  EXPECT_NE(typo.status().message().find("unknown type 'flaot'"), std::string::npos) << typo.status().message();
+}
+
 TEST(Kr5Package, Tool0AtZeroJoints) {
   ARREF_REQUIRE_SHARED();
   const RobotModel robot = LoadOrDie(Kr5PackageDir() + "/urdf/kr5_arc.urdf",

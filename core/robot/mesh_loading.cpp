@@ -9,10 +9,10 @@
 #include <cstdlib>
 #include <cctype>
 #include <filesystem>
-#include <fstream>
 #include <sstream>
 
 #include "arref/robot/robot_model.h"
+#include "ply_check.h"
 
 namespace fs = std::filesystem;
 
@@ -91,60 +91,6 @@ bool IsPly(const std::string& path) {
   return ext == ".ply";
 }
 
-// Assimp 5.2's PLY reader never returns on some malformed headers (seen: a misspelt "element"
-// line; found by tests/fuzz/mesh_fuzz.cpp), so a PLY header is checked here before assimp
-// reads the file: "ply", one format line, then element lines each followed by its properties,
-// comments, up to end_header.
-Status CheckPlyHeader(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  std::string line;
-  const auto next = [&] {
-    if (!std::getline(in, line)) return false;
-    if (!line.empty() && line.back() == '\r') line.pop_back();
-    return true;
-  };
-  const auto bad = [&](int n, const std::string& why) {
-    return Status::IoError(fmt::format("PLY header line {} ('{}'): {}", n, line.substr(0, 60), why));
-  };
-  if (!next() || line != "ply") return Status::IoError("not a PLY file: the first line is not 'ply'");
-  bool format = false;
-  long long properties_due = 0;  // the last element has rows but no property yet
-  for (int n = 2; n < 100000 && next(); ++n) {
-    std::istringstream words(line);
-    std::string key;
-    words >> key;
-    if (key == "comment" || key == "obj_info") continue;
-    if (key == "end_header") {
-      if (!format) return bad(n, "no format line before end_header");
-      if (properties_due > 0) return bad(n, "the last element has no property");
-      return Status::Ok();
-    }
-    if (key == "format") {
-      std::string kind, version;
-      words >> kind >> version;
-      if (format || version != "1.0" ||
-          (kind != "ascii" && kind != "binary_little_endian" && kind != "binary_big_endian"))
-        return bad(n, "expected one 'format ascii|binary_little_endian|binary_big_endian 1.0'");
-      format = true;
-    } else if (key == "element") {
-      std::string name;
-      long long count = -1;
-      if (properties_due > 0) return bad(n, "the element before has no property");
-      if (!(words >> name >> count) || count < 0) return bad(n, "expected 'element NAME COUNT'");
-      properties_due = count;
-    } else if (key == "property") {
-      std::string type, name;
-      words >> type;
-      if (type == "list") words >> type >> type;  // the count's type, then the items'
-      if (!(words >> name)) return bad(n, "expected 'property TYPE NAME' or 'property list COUNT_TYPE TYPE NAME'");
-      properties_due = 0;
-    } else {
-      return bad(n, "not a PLY header keyword");
-    }
-  }
-  return Status::IoError("PLY header has no end_header line");
-}
-
 }  // namespace
 
 Result<std::string> ResolveMeshUri(const std::string& uri, const std::string& urdf_dir,
@@ -158,7 +104,7 @@ Result<std::string> ResolveMeshUri(const std::string& uri, const std::string& ur
 
 Result<TriangleMesh> LoadMeshFile(const std::string& path) {
   if (!fs::is_regular_file(path)) return Status::NotFound("mesh file not found: " + path);
-  if (IsPly(path)) ARREF_RETURN_IF_ERROR(CheckPlyHeader(path).WithContext("mesh " + path));
+  if (IsPly(path)) ARREF_RETURN_IF_ERROR(CheckPlyFile(path).WithContext("mesh " + path));
   Assimp::Importer importer;
   // ROS meshes keep their authored axes: URDF link frames already say which way is up, so
   // COLLADA's <up_axis> must not rotate the geometry (rviz does the same).

@@ -1,0 +1,248 @@
+#include "ply_check.h"
+
+#include <fmt/format.h>
+
+#include <algorithm>
+#include <array>
+#include <bit>
+#include <charconv>
+#include <cmath>
+#include <cstdint>
+#include <cstring>
+#include <fstream>
+#include <limits>
+#include <optional>
+#include <sstream>
+#include <utility>
+#include <vector>
+
+namespace arref {
+namespace {
+
+enum class PlyType { kInt8, kUint8, kInt16, kUint16, kInt32, kUint32, kFloat32, kFloat64 };
+enum class PlyFormat { kAscii, kLittleEndian, kBigEndian };
+
+struct PlyProperty {
+  bool list = false;
+  PlyType count = PlyType::kUint8;  // lists only
+  PlyType item = PlyType::kFloat32;
+};
+
+struct PlyElement {
+  std::string name;
+  long long rows = 0;
+  std::vector<PlyProperty> properties;
+};
+
+struct PlyHeader {
+  PlyFormat format = PlyFormat::kAscii;
+  std::vector<PlyElement> elements;
+};
+
+std::optional<PlyType> ParseType(const std::string& name) {
+  static constexpr std::array<std::pair<std::string_view, PlyType>, 16> kNames = {{
+      {"char", PlyType::kInt8}, {"int8", PlyType::kInt8}, {"uchar", PlyType::kUint8}, {"uint8", PlyType::kUint8},
+      {"short", PlyType::kInt16}, {"int16", PlyType::kInt16}, {"ushort", PlyType::kUint16},
+      {"uint16", PlyType::kUint16}, {"int", PlyType::kInt32}, {"int32", PlyType::kInt32}, {"uint", PlyType::kUint32},
+      {"uint32", PlyType::kUint32}, {"float", PlyType::kFloat32}, {"float32", PlyType::kFloat32},
+      {"double", PlyType::kFloat64}, {"float64", PlyType::kFloat64},
+  }};
+  for (const auto& [n, t] : kNames)
+    if (n == name) return t;
+  return std::nullopt;
+}
+
+const char* TypeName(PlyType t) {
+  static constexpr std::array<const char*, 8> kNames = {"int8", "uint8", "int16", "uint16", "int32", "uint32", "float32", "float64"};
+  return kNames[static_cast<int>(t)];
+}
+
+int SizeOf(PlyType t) {
+  static constexpr std::array<int, 8> kSizes = {1, 1, 2, 2, 4, 4, 4, 8};
+  return kSizes[static_cast<int>(t)];
+}
+
+bool IsInteger(PlyType t) { return t != PlyType::kFloat32 && t != PlyType::kFloat64; }
+
+// Whether a value read as a double is one the type holds (finite, integral for integer types).
+bool Fits(PlyType t, double v) {
+  if (!std::isfinite(v)) return false;
+  switch (t) {
+    case PlyType::kInt8: return v == std::floor(v) && v >= -128 && v <= 127;
+    case PlyType::kUint8: return v == std::floor(v) && v >= 0 && v <= 255;
+    case PlyType::kInt16: return v == std::floor(v) && v >= -32768 && v <= 32767;
+    case PlyType::kUint16: return v == std::floor(v) && v >= 0 && v <= 65535;
+    case PlyType::kInt32: return v == std::floor(v) && v >= -2147483648.0 && v <= 2147483647.0;
+    case PlyType::kUint32: return v == std::floor(v) && v >= 0 && v <= 4294967295.0;
+    case PlyType::kFloat32: return std::abs(v) <= std::numeric_limits<float>::max();
+    case PlyType::kFloat64: return true;
+  }
+  return false;
+}
+
+class HeaderReader {
+ public:
+  explicit HeaderReader(std::istream& in) : in_(in) {}
+  Result<PlyHeader> Read();
+
+ private:
+  bool Next() {
+    if (!std::getline(in_, line_)) return false;
+    if (!line_.empty() && line_.back() == '\r') line_.pop_back();
+    return true;
+  }
+  Status Bad(int n, const std::string& why) const {
+    return Status::IoError(fmt::format("PLY header line {} ('{}'): {}", n, line_.substr(0, 60), why));
+  }
+  Status Property(int n, std::istringstream& words, PlyHeader* header) const;
+
+  std::istream& in_;
+  std::string line_;
+};
+
+Status HeaderReader::Property(int n, std::istringstream& words, PlyHeader* header) const {
+  if (header->elements.empty()) return Bad(n, "a property before any element");
+  PlyProperty p;
+  std::string type, name;
+  words >> type;
+  if (type == "list") {
+    std::string count;
+    words >> count >> type;
+    const auto c = ParseType(count);
+    if (!c || !IsInteger(*c)) return Bad(n, "a list's count type must be an integer type, not '" + count + "'");
+    p.list = true, p.count = *c;
+  }
+  if (!(words >> name)) return Bad(n, "expected 'property TYPE NAME' or 'property list COUNT_TYPE TYPE NAME'");
+  const auto t = ParseType(type);
+  if (!t) return Bad(n, "unknown type '" + type + "'");
+  p.item = *t;
+  header->elements.back().properties.push_back(p);
+  return Status::Ok();
+}
+
+Result<PlyHeader> HeaderReader::Read() {
+  if (!Next() || line_ != "ply") return Status::IoError("not a PLY file: the first line is not 'ply'");
+  PlyHeader header;
+  bool format = false;
+  for (int n = 2; n < 100000 && Next(); ++n) {
+    std::istringstream words(line_);
+    std::string key;
+    words >> key;
+    const bool last_has_no_property = !header.elements.empty() && header.elements.back().properties.empty() &&
+                                      header.elements.back().rows > 0;
+    if (key == "comment" || key == "obj_info") continue;
+    if (key == "end_header") {
+      if (!format) return Bad(n, "no format line before end_header");
+      if (last_has_no_property) return Bad(n, "the last element has no property");
+      return header;
+    }
+    if (key == "format") {
+      std::string kind, version;
+      words >> kind >> version;
+      if (format || version != "1.0" ||
+          (kind != "ascii" && kind != "binary_little_endian" && kind != "binary_big_endian"))
+        return Bad(n, "expected one 'format ascii|binary_little_endian|binary_big_endian 1.0'");
+      header.format = kind == "ascii" ? PlyFormat::kAscii
+                      : kind == "binary_little_endian" ? PlyFormat::kLittleEndian
+                                                       : PlyFormat::kBigEndian;
+      format = true;
+    } else if (key == "element") {
+      PlyElement e;
+      if (last_has_no_property) return Bad(n, "the element before has no property");
+      if (!(words >> e.name >> e.rows) || e.rows < 0) return Bad(n, "expected 'element NAME COUNT'");
+      header.elements.push_back(std::move(e));
+    } else if (key == "property") {
+      ARREF_RETURN_IF_ERROR(Property(n, words, &header));
+    } else {
+      return Bad(n, "not a PLY header keyword");
+    }
+  }
+  return Status::IoError("PLY header has no end_header line");
+}
+
+// Reads the body's values one at a time, as text or as binary of either byte order.
+class ValueReader {
+ public:
+  ValueReader(std::istream& in, PlyFormat format) : in_(in), format_(format) {}
+  // The next value of type t; false at the end of the file or on a value the type cannot hold
+  // (what was read is in token()).
+  bool Next(PlyType t, double* value);
+  const std::string& token() const { return token_; }
+
+ private:
+  bool NextBinary(PlyType t, double* value);
+
+  std::istream& in_;
+  PlyFormat format_;
+  std::string token_;
+};
+
+bool ValueReader::Next(PlyType t, double* value) {
+  if (format_ != PlyFormat::kAscii) return NextBinary(t, value);
+  token_.clear();
+  if (!(in_ >> token_)) return false;
+  const char* end = token_.data() + token_.size();
+  const auto [ptr, ec] = std::from_chars(token_.data(), end, *value);
+  return ec == std::errc() && ptr == end && Fits(t, *value);
+}
+
+bool ValueReader::NextBinary(PlyType t, double* value) {
+  std::array<unsigned char, 8> b{};
+  const int size = SizeOf(t);
+  if (!in_.read(reinterpret_cast<char*>(b.data()), size)) return false;
+  if ((format_ == PlyFormat::kBigEndian) == (std::endian::native == std::endian::little))
+    std::reverse(b.begin(), b.begin() + size);
+  token_.clear();
+  for (int i = 0; i < size; ++i) token_ += fmt::format("{:02x}", b[static_cast<std::size_t>(i)]);
+  std::uint64_t bits = 0;
+  std::memcpy(&bits, b.data(), static_cast<std::size_t>(size));  // native order now
+  switch (t) {
+    case PlyType::kInt8: *value = static_cast<std::int8_t>(bits); break;
+    case PlyType::kUint8: *value = static_cast<std::uint8_t>(bits); break;
+    case PlyType::kInt16: *value = static_cast<std::int16_t>(bits); break;
+    case PlyType::kUint16: *value = static_cast<std::uint16_t>(bits); break;
+    case PlyType::kInt32: *value = static_cast<std::int32_t>(bits); break;
+    case PlyType::kUint32: *value = static_cast<std::uint32_t>(bits); break;
+    case PlyType::kFloat32: *value = std::bit_cast<float>(static_cast<std::uint32_t>(bits)); break;
+    case PlyType::kFloat64: *value = std::bit_cast<double>(bits); break;
+  }
+  return Fits(t, *value);
+}
+
+// Every row of every element, value by value. Each value read takes at least one byte, so a
+// list's count cannot make this loop outlast the file.
+Status CheckBody(std::istream& in, const PlyHeader& header) {
+  ValueReader reader(in, header.format);
+  for (const PlyElement& e : header.elements)
+    for (long long row = 0; row < e.rows; ++row)
+      for (std::size_t k = 0; k < e.properties.size(); ++k) {
+        const PlyProperty& p = e.properties[k];
+        const auto fault = [&](PlyType t, const char* what) {
+          if (in.eof() || (!in && reader.token().empty()))
+            return Status::IoError(fmt::format("PLY body ends in element '{}' row {} of {}", e.name, row + 1, e.rows));
+          return Status::IoError(fmt::format("PLY body: element '{}' row {} property {}: {} '{}' is not a {}", e.name,
+                                             row + 1, k + 1, what, reader.token().substr(0, 40), TypeName(t)));
+        };
+        double v = 0;
+        long long items = 1;
+        if (p.list) {
+          if (!reader.Next(p.count, &v)) return fault(p.count, "list count");
+          items = static_cast<long long>(v);
+        }
+        for (long long i = 0; i < items; ++i)
+          if (!reader.Next(p.item, &v)) return fault(p.item, "value");
+      }
+  return Status::Ok();
+}
+
+}  // namespace
+
+Status CheckPlyFile(const std::string& path) {
+  std::ifstream in(path, std::ios::binary);
+  if (!in) return Status::IoError("cannot open " + path);
+  HeaderReader header_reader(in);
+  ARREF_ASSIGN_OR_RETURN(const PlyHeader header, header_reader.Read());
+  return CheckBody(in, header);
+}
+
+}  // namespace arref

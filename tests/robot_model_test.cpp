@@ -289,6 +289,22 @@ TEST(MeshFile, MalformedPlyBodyIsAnErrorNotAnExhaustedMachine) {
   ASSERT_FALSE(r.ok());
   EXPECT_NE(r.status().message().find("PLY body ends in element 'face' row 1 of 1"), std::string::npos)
       << r.status().message();
+  // Headers are read strictly: assimp corrupted its heap on a binary file whose header held two
+  // 'vertex' elements, and on one with binary bytes run into a property line.
+  const std::string two = "ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\n"
+                          "property float z\nelement vertex 2\nproperty float y\nend_header\n0 0 0\n1\n2\n";
+  const auto twice = load(two);
+  ASSERT_FALSE(twice.ok());
+  EXPECT_NE(twice.status().message().find("a second element 'vertex'"), std::string::npos) << twice.status().message();
+  const auto control = load(std::string("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\0\x0e\xff\n", 58) +
+                            "end_header\n0\n");
+  ASSERT_FALSE(control.ok());
+  EXPECT_NE(control.status().message().find("a control character in the header"), std::string::npos)
+      << control.status().message();
+  const auto no_z = load("ply\nformat ascii 1.0\nelement vertex 1\nproperty float x\nproperty float y\nend_header\n0 0\n");
+  ASSERT_FALSE(no_z.ok());
+  EXPECT_NE(no_z.status().message().find("element 'vertex' has no scalar property 'z'"), std::string::npos)
+      << no_z.status().message();
   // Header types are checked too.
   const auto typo = load("ply\nformat ascii 1.0\nelement vertex 1\nproperty flaot x\nend_header\n0\n");
   ASSERT_FALSE(typo.ok());

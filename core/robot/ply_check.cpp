@@ -23,6 +23,7 @@ enum class PlyType { kInt8, kUint8, kInt16, kUint16, kInt32, kUint32, kFloat32, 
 enum class PlyFormat { kAscii, kLittleEndian, kBigEndian };
 
 struct PlyProperty {
+  std::string name;
   bool list = false;
   PlyType count = PlyType::kUint8;  // lists only
   PlyType item = PlyType::kFloat32;
@@ -94,30 +95,72 @@ class HeaderReader {
   Status Bad(int n, const std::string& why) const {
     return Status::IoError(fmt::format("PLY header line {} ('{}'): {}", n, line_.substr(0, 60), why));
   }
-  Status Property(int n, std::istringstream& words, PlyHeader* header) const;
+  Status Element(int n, const std::vector<std::string>& words, PlyHeader* header) const;
+  Status Property(int n, const std::vector<std::string>& words, PlyHeader* header) const;
 
   std::istream& in_;
   std::string line_;
 };
 
-Status HeaderReader::Property(int n, std::istringstream& words, PlyHeader* header) const {
+// A header line's words; none may hold a control character (a binary body run into the header).
+std::optional<std::vector<std::string>> Words(const std::string& line) {
+  for (const char c : line)
+    if (static_cast<unsigned char>(c) < 0x20 && c != '\t') return std::nullopt;
+  std::istringstream in(line);
+  std::vector<std::string> words;
+  for (std::string w; in >> w;) words.push_back(std::move(w));
+  return words;
+}
+
+Status HeaderReader::Element(int n, const std::vector<std::string>& words, PlyHeader* header) const {
+  PlyElement e;
+  if (words.size() != 3) return Bad(n, "expected 'element NAME COUNT'");
+  e.name = words[1];
+  const char* end = words[2].data() + words[2].size();
+  const auto [ptr, ec] = std::from_chars(words[2].data(), end, e.rows);
+  if (ec != std::errc() || ptr != end || e.rows < 0) return Bad(n, "expected 'element NAME COUNT'");
+  // Assimp corrupted its heap on a file with two 'vertex' elements (tests/fuzz/regressions/mesh).
+  for (const PlyElement& other : header->elements)
+    if (other.name == e.name) return Bad(n, "a second element '" + e.name + "'");
+  header->elements.push_back(std::move(e));
+  return Status::Ok();
+}
+
+Status HeaderReader::Property(int n, const std::vector<std::string>& words, PlyHeader* header) const {
   if (header->elements.empty()) return Bad(n, "a property before any element");
+  const bool list = words.size() > 1 && words[1] == "list";
+  if (words.size() != (list ? 5u : 3u))
+    return Bad(n, "expected 'property TYPE NAME' or 'property list COUNT_TYPE TYPE NAME'");
+  PlyElement& element = header->elements.back();
   PlyProperty p;
-  std::string type, name;
-  words >> type;
-  if (type == "list") {
-    std::string count;
-    words >> count >> type;
-    const auto c = ParseType(count);
-    if (!c || !IsInteger(*c)) return Bad(n, "a list's count type must be an integer type, not '" + count + "'");
+  p.name = words.back();
+  for (const PlyProperty& other : element.properties)
+    if (other.name == p.name) return Bad(n, "a second property '" + p.name + "' in element '" + element.name + "'");
+  if (list) {
+    const auto c = ParseType(words[2]);
+    if (!c || !IsInteger(*c)) return Bad(n, "a list's count type must be an integer type, not '" + words[2] + "'");
     p.list = true, p.count = *c;
   }
-  if (!(words >> name)) return Bad(n, "expected 'property TYPE NAME' or 'property list COUNT_TYPE TYPE NAME'");
-  const auto t = ParseType(type);
-  if (!t) return Bad(n, "unknown type '" + type + "'");
+  const auto t = ParseType(words[list ? 3 : 1]);
+  if (!t) return Bad(n, "unknown type '" + words[list ? 3 : 1] + "'");
   p.item = *t;
-  header->elements.back().properties.push_back(p);
+  element.properties.push_back(std::move(p));
   return Status::Ok();
+}
+
+// What a mesh file needs of its header beyond the format: vertices with scalar x, y and z.
+Status CheckMeshElements(const PlyHeader& header) {
+  for (const PlyElement& e : header.elements) {
+    if (e.name != "vertex") continue;
+    for (const char* axis : {"x", "y", "z"}) {
+      const auto it = std::find_if(e.properties.begin(), e.properties.end(),
+                                   [&](const PlyProperty& p) { return p.name == axis; });
+      if (it == e.properties.end() || it->list)
+        return Status::IoError(fmt::format("PLY header: element 'vertex' has no scalar property '{}'", axis));
+    }
+    return Status::Ok();
+  }
+  return Status::IoError("PLY header: no element 'vertex'");
 }
 
 Result<PlyHeader> HeaderReader::Read() {
@@ -125,21 +168,21 @@ Result<PlyHeader> HeaderReader::Read() {
   PlyHeader header;
   bool format = false;
   for (int n = 2; n < 100000 && Next(); ++n) {
-    std::istringstream words(line_);
-    std::string key;
-    words >> key;
+    const auto words = Words(line_);
+    if (!words) return Bad(n, "a control character in the header");
+    const std::string key = words->empty() ? "" : words->front();
     const bool last_has_no_property = !header.elements.empty() && header.elements.back().properties.empty() &&
                                       header.elements.back().rows > 0;
     if (key == "comment" || key == "obj_info") continue;
     if (key == "end_header") {
       if (!format) return Bad(n, "no format line before end_header");
       if (last_has_no_property) return Bad(n, "the last element has no property");
+      ARREF_RETURN_IF_ERROR(CheckMeshElements(header));
       return header;
     }
     if (key == "format") {
-      std::string kind, version;
-      words >> kind >> version;
-      if (format || version != "1.0" ||
+      const std::string kind = words->size() == 3 ? (*words)[1] : "";
+      if (format || words->size() != 3 || (*words)[2] != "1.0" ||
           (kind != "ascii" && kind != "binary_little_endian" && kind != "binary_big_endian"))
         return Bad(n, "expected one 'format ascii|binary_little_endian|binary_big_endian 1.0'");
       header.format = kind == "ascii" ? PlyFormat::kAscii
@@ -147,12 +190,10 @@ Result<PlyHeader> HeaderReader::Read() {
                                                        : PlyFormat::kBigEndian;
       format = true;
     } else if (key == "element") {
-      PlyElement e;
       if (last_has_no_property) return Bad(n, "the element before has no property");
-      if (!(words >> e.name >> e.rows) || e.rows < 0) return Bad(n, "expected 'element NAME COUNT'");
-      header.elements.push_back(std::move(e));
+      ARREF_RETURN_IF_ERROR(Element(n, *words, &header));
     } else if (key == "property") {
-      ARREF_RETURN_IF_ERROR(Property(n, words, &header));
+      ARREF_RETURN_IF_ERROR(Property(n, *words, &header));
     } else {
       return Bad(n, "not a PLY header keyword");
     }

@@ -268,7 +268,11 @@ TEST(MeshFile, MalformedPlyBodyIsAnErrorNotAnExhaustedMachine) {
         "element 'vertex' row 2 property 1: value '1444");  // the fuzzer's input
   fault("0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n300 0 1 2\n", "element 'face' row 2 property 1: list count '300' is not a uint8");
   fault("0 0 0\n1 0 0\n1 1 0\n0 1 nan\n3 0 1 2\n3 0 2 3\n", "row 4 property 3: value 'nan' is not a float32");
-  fault("0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2\n", "PLY body ends in element 'face' row 2 of 2");
+  fault("0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2\n", "element 'face' row 2: the line ends before property 1");
+  // One row a line, as assimp reads them: a row wrapped onto the next line made it read a face's
+  // count from a vertex line (666666662) and allocate until the process died (the fuzzer's).
+  fault("0 0 0\n1 0 0\n0 1 0\n1  \n666666662\n4 0 1 3 2\n", "element 'vertex' row 4: the line ends before property 2");
+  fault("0 0 0 7\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2 3\n", "element 'vertex' row 1: '7' beyond its 3 properties");
   fault("0 0 0\n1 0 0\n", "PLY body ends in element 'vertex' row 3 of 4");
   ASSERT_OK_AND_ASSIGN(const TriangleMesh fine, load(header + "0 0 0\n1 0 0\n1 1 0\n0 1 0\n3 0 1 2\n3 0 2 3\n"));
   EXPECT_EQ(fine.triangles.size(), 2u);

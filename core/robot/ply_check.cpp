@@ -201,13 +201,18 @@ Result<PlyHeader> HeaderReader::Read() {
   return Status::IoError("PLY header has no end_header line");
 }
 
-// Reads the body's values one at a time, as text or as binary of either byte order.
+// Reads the body's values one at a time, as text or as binary of either byte order. A text row
+// is one line: assimp reads ASCII bodies line by line, so values that wrap onto the next line
+// shift every row after them (an ASCII face count read from a vertex line made it allocate
+// 2.6 GB; tests/fuzz/regressions/mesh).
 class ValueReader {
  public:
   ValueReader(std::istream& in, PlyFormat format) : in_(in), format_(format) {}
-  // The next value of type t; false at the end of the file or on a value the type cannot hold
-  // (what was read is in token()).
+  bool BeginRow();  // false at the end of the file
+  // The next value of type t; false at the end of the row (text) or file (binary), with token()
+  // empty, or on a value the type cannot hold (what was read is in token()).
   bool Next(PlyType t, double* value);
+  bool RowDone();  // no value left on the row's line
   const std::string& token() const { return token_; }
 
  private:
@@ -215,13 +220,29 @@ class ValueReader {
 
   std::istream& in_;
   PlyFormat format_;
+  std::istringstream row_;
   std::string token_;
 };
+
+bool ValueReader::BeginRow() {
+  if (format_ != PlyFormat::kAscii) return in_.peek() != std::char_traits<char>::eof();
+  std::string line;
+  if (!std::getline(in_, line)) return false;
+  row_.clear();
+  row_.str(line);
+  return true;
+}
+
+bool ValueReader::RowDone() {
+  if (format_ != PlyFormat::kAscii) return true;
+  token_.clear();
+  return !(row_ >> token_);
+}
 
 bool ValueReader::Next(PlyType t, double* value) {
   if (format_ != PlyFormat::kAscii) return NextBinary(t, value);
   token_.clear();
-  if (!(in_ >> token_)) return false;
+  if (!(row_ >> token_)) return false;
   const char* end = token_.data() + token_.size();
   const auto [ptr, ec] = std::from_chars(token_.data(), end, *value);
   return ec == std::errc() && ptr == end && Fits(t, *value);
@@ -230,10 +251,10 @@ bool ValueReader::Next(PlyType t, double* value) {
 bool ValueReader::NextBinary(PlyType t, double* value) {
   std::array<unsigned char, 8> b{};
   const int size = SizeOf(t);
+  token_.clear();
   if (!in_.read(reinterpret_cast<char*>(b.data()), size)) return false;
   if ((format_ == PlyFormat::kBigEndian) == (std::endian::native == std::endian::little))
     std::reverse(b.begin(), b.begin() + size);
-  token_.clear();
   for (int i = 0; i < size; ++i) token_ += fmt::format("{:02x}", b[static_cast<std::size_t>(i)]);
   std::uint64_t bits = 0;
   std::memcpy(&bits, b.data(), static_cast<std::size_t>(size));  // native order now
@@ -253,16 +274,21 @@ bool ValueReader::NextBinary(PlyType t, double* value) {
 // Every row of every element, value by value. Each value read takes at least one byte, so a
 // list's count cannot make this loop outlast the file.
 Status CheckBody(std::istream& in, const PlyHeader& header) {
+  const bool text = header.format == PlyFormat::kAscii;
   ValueReader reader(in, header.format);
   for (const PlyElement& e : header.elements)
-    for (long long row = 0; row < e.rows; ++row)
+    for (long long row = 0; row < e.rows; ++row) {
+      const std::string where = fmt::format("element '{}' row {}", e.name, row + 1);
+      const auto ends = [&] { return Status::IoError(fmt::format("PLY body ends in {} of {}", where, e.rows)); };
+      if (!reader.BeginRow()) return ends();
       for (std::size_t k = 0; k < e.properties.size(); ++k) {
         const PlyProperty& p = e.properties[k];
         const auto fault = [&](PlyType t, const char* what) {
-          if (in.eof() || (!in && reader.token().empty()))
-            return Status::IoError(fmt::format("PLY body ends in element '{}' row {} of {}", e.name, row + 1, e.rows));
-          return Status::IoError(fmt::format("PLY body: element '{}' row {} property {}: {} '{}' is not a {}", e.name,
-                                             row + 1, k + 1, what, reader.token().substr(0, 40), TypeName(t)));
+          if (!reader.token().empty())
+            return Status::IoError(fmt::format("PLY body: {} property {}: {} '{}' is not a {}", where, k + 1, what,
+                                               reader.token().substr(0, 40), TypeName(t)));
+          if (!text) return ends();
+          return Status::IoError(fmt::format("PLY body: {}: the line ends before property {} (one row a line)", where, k + 1));
         };
         double v = 0;
         long long items = 1;
@@ -273,6 +299,10 @@ Status CheckBody(std::istream& in, const PlyHeader& header) {
         for (long long i = 0; i < items; ++i)
           if (!reader.Next(p.item, &v)) return fault(p.item, "value");
       }
+      if (!reader.RowDone())
+        return Status::IoError(fmt::format("PLY body: {}: '{}' beyond its {} properties (one row a line)", where,
+                                           reader.token().substr(0, 40), e.properties.size()));
+    }
   return Status::Ok();
 }
 

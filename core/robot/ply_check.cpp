@@ -92,8 +92,12 @@ class HeaderReader {
     if (!line_.empty() && line_.back() == '\r') line_.pop_back();
     return true;
   }
+  // The line as shown in the error, control characters as '?' (a log must stay readable).
   Status Bad(int n, const std::string& why) const {
-    return Status::IoError(fmt::format("PLY header line {} ('{}'): {}", n, line_.substr(0, 60), why));
+    std::string shown = line_.substr(0, 60);
+    for (char& c : shown)
+      if (static_cast<unsigned char>(c) < 0x20) c = '?';
+    return Status::IoError(fmt::format("PLY header line {} ('{}'): {}", n, shown, why));
   }
   Status Element(int n, const std::vector<std::string>& words, PlyHeader* header) const;
   Status Property(int n, const std::vector<std::string>& words, PlyHeader* header) const;

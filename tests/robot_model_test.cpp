@@ -213,16 +213,19 @@ TEST(MeshFile, PlyRoundTripPolygonsAndBadFaces) {
   EXPECT_NE(bad.status().message().find("vertex 9"), std::string::npos) << bad.status().ToString();
 }
 
+// The text written to a .ply file in dir, then loaded.
+Result<TriangleMesh> LoadPlyText(const testing::ScopedTempDir& dir, const std::string& text) {
+  const std::string path = dir.path() + "/m.ply";
+  std::ofstream(path, std::ios::binary | std::ios::trunc) << text;
+  return LoadMeshFile(path);
+}
+
 // Assimp 5.2's PLY reader never returned on this header (a misspelt element line, then STL-like
 // lines; found by tests/fuzz/mesh_fuzz.cpp): PLY headers are checked first and each fault is an
 // IO_ERROR naming the line, so a URDF or a headset mesh cannot hang a load.
 TEST(MeshFile, MalformedPlyHeaderIsAnErrorNotAHang) {
   const testing::ScopedTempDir tmp;
-  const auto load = [&](const std::string& text) {
-    const std::string path = tmp.path() + "/m.ply";
-    std::ofstream(path, std::ios::binary | std::ios::trunc) << text;
-    return LoadMeshFile(path);
-  };
+  const auto load = [&](const std::string& text) { return LoadPlyText(tmp, text); };
   const std::string body = "0 0 0\n1 0 0\n0 1 0\n3 0 1 2\n";
   const auto hang = load("ply\nformat ascii 1.0\nelement0 1\nouter loop\nvertex 0 0 0\nend_header\n" + body);
   ASSERT_FALSE(hang.ok());
@@ -251,11 +254,7 @@ TEST(MeshFile, MalformedPlyHeaderIsAnErrorNotAHang) {
 // all there, each list within the file; the fault is an IO_ERROR naming element, row and value.
 TEST(MeshFile, MalformedPlyBodyIsAnErrorNotAnExhaustedMachine) {
   const testing::ScopedTempDir tmp;
-  const auto load = [&](const std::string& text) {
-    const std::string path = tmp.path() + "/m.ply";
-    std::ofstream(path, std::ios::binary | std::ios::trunc) << text;
-    return LoadMeshFile(path);
-  };
+  const auto load = [&](const std::string& text) { return LoadPlyText(tmp, text); };
   const std::string header = "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
                              "property float z\nelement face 2\nproperty list uchar int vertex_indices\nend_header\n";
   const auto fault = [&](const std::string& body, const std::string& expected) {

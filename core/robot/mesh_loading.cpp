@@ -104,7 +104,8 @@ Result<std::string> ResolveMeshUri(const std::string& uri, const std::string& ur
 
 Result<TriangleMesh> LoadMeshFile(const std::string& path) {
   if (!fs::is_regular_file(path)) return Status::NotFound("mesh file not found: " + path);
-  if (IsPly(path)) ARREF_RETURN_IF_ERROR(CheckPlyFile(path).WithContext("mesh " + path));
+  const bool ply = IsPly(path);
+  if (ply) ARREF_RETURN_IF_ERROR(CheckPlyFile(path).WithContext("mesh " + path));
   Assimp::Importer importer;
   // ROS meshes keep their authored axes: URDF link frames already say which way is up, so
   // COLLADA's <up_axis> must not rotate the geometry (rviz does the same).
@@ -114,7 +115,7 @@ Result<TriangleMesh> LoadMeshFile(const std::string& path) {
   // counts), and its post-processing then aborts or crashes on them. A headset mesh in PLY is
   // read without post-processing: faces are checked and split into triangles here.
   const unsigned steps =
-      IsPly(path) ? 0u : unsigned{aiProcess_Triangulate | aiProcess_JoinIdenticalVertices | aiProcess_SortByPType};
+      ply ? 0u : unsigned{aiProcess_Triangulate | aiProcess_JoinIdenticalVertices | aiProcess_SortByPType};
   const aiScene* scene = importer.ReadFile(path, steps);
   if (scene == nullptr || scene->mRootNode == nullptr)
     return Status::IoError("cannot read mesh " + path + ": " + importer.GetErrorString());

@@ -259,7 +259,6 @@ bool ValueReader::NextBinary(PlyType t, double* value) {
   if (!in_.read(reinterpret_cast<char*>(b.data()), size)) return false;
   if ((format_ == PlyFormat::kBigEndian) == (std::endian::native == std::endian::little))
     std::reverse(b.begin(), b.begin() + size);
-  for (int i = 0; i < size; ++i) token_ += fmt::format("{:02x}", b[static_cast<std::size_t>(i)]);
   std::uint64_t bits = 0;
   std::memcpy(&bits, b.data(), static_cast<std::size_t>(size));  // native order now
   switch (t) {
@@ -272,7 +271,10 @@ bool ValueReader::NextBinary(PlyType t, double* value) {
     case PlyType::kFloat32: *value = std::bit_cast<float>(static_cast<std::uint32_t>(bits)); break;
     case PlyType::kFloat64: *value = std::bit_cast<double>(bits); break;
   }
-  return Fits(t, *value);
+  if (Fits(t, *value)) return true;
+  // Shown only in the error: the bytes in native order.
+  for (int i = 0; i < size; ++i) token_ += fmt::format("{:02x}", b[static_cast<std::size_t>(i)]);
+  return false;
 }
 
 // Every row of every element, value by value. Each value read takes at least one byte, so a
@@ -282,17 +284,18 @@ Status CheckBody(std::istream& in, const PlyHeader& header) {
   ValueReader reader(in, header.format);
   for (const PlyElement& e : header.elements)
     for (long long row = 0; row < e.rows; ++row) {
-      const std::string where = fmt::format("element '{}' row {}", e.name, row + 1);
-      const auto ends = [&] { return Status::IoError(fmt::format("PLY body ends in {} of {}", where, e.rows)); };
+      // Formatted only for an error: this loop runs once a row of files with millions of rows.
+      const auto where = [&] { return fmt::format("element '{}' row {}", e.name, row + 1); };
+      const auto ends = [&] { return Status::IoError(fmt::format("PLY body ends in {} of {}", where(), e.rows)); };
       if (!reader.BeginRow()) return ends();
       for (std::size_t k = 0; k < e.properties.size(); ++k) {
         const PlyProperty& p = e.properties[k];
         const auto fault = [&](PlyType t, const char* what) {
           if (!reader.token().empty())
-            return Status::IoError(fmt::format("PLY body: {} property {}: {} '{}' is not a {}", where, k + 1, what,
+            return Status::IoError(fmt::format("PLY body: {} property {}: {} '{}' is not a {}", where(), k + 1, what,
                                                reader.token().substr(0, 40), TypeName(t)));
           if (!text) return ends();
-          return Status::IoError(fmt::format("PLY body: {}: the line ends before property {} (one row a line)", where, k + 1));
+          return Status::IoError(fmt::format("PLY body: {}: the line ends before property {} (one row a line)", where(), k + 1));
         };
         double v = 0;
         long long items = 1;
@@ -304,7 +307,7 @@ Status CheckBody(std::istream& in, const PlyHeader& header) {
           if (!reader.Next(p.item, &v)) return fault(p.item, "value");
       }
       if (!reader.RowDone())
-        return Status::IoError(fmt::format("PLY body: {}: '{}' beyond its {} properties (one row a line)", where,
+        return Status::IoError(fmt::format("PLY body: {}: '{}' beyond its {} properties (one row a line)", where(),
                                            reader.token().substr(0, 40), e.properties.size()));
     }
   return Status::Ok();

@@ -13,6 +13,7 @@
 #include <limits>
 #include <optional>
 #include <sstream>
+#include <string_view>
 #include <utility>
 #include <vector>
 
@@ -40,45 +41,41 @@ struct PlyHeader {
   std::vector<PlyElement> elements;
 };
 
+// What the checks need of each type, in PlyType's order: its two names, its size in a binary
+// body, and the values it holds.
+struct TypeInfo {
+  std::string_view name, alias;
+  int size;
+  bool integer;
+  double min, max;
+};
+constexpr std::array<TypeInfo, 8> kTypes = {{
+    {"int8", "char", 1, true, -128.0, 127.0},
+    {"uint8", "uchar", 1, true, 0.0, 255.0},
+    {"int16", "short", 2, true, -32768.0, 32767.0},
+    {"uint16", "ushort", 2, true, 0.0, 65535.0},
+    {"int32", "int", 4, true, -2147483648.0, 2147483647.0},
+    {"uint32", "uint", 4, true, 0.0, 4294967295.0},
+    {"float32", "float", 4, false, -std::numeric_limits<float>::max(), std::numeric_limits<float>::max()},
+    {"float64", "double", 8, false, -std::numeric_limits<double>::max(), std::numeric_limits<double>::max()},
+}};
+
+const TypeInfo& Info(PlyType t) { return kTypes[static_cast<std::size_t>(t)]; }
+
 std::optional<PlyType> ParseType(const std::string& name) {
-  static constexpr std::array<std::pair<std::string_view, PlyType>, 16> kNames = {{
-      {"char", PlyType::kInt8}, {"int8", PlyType::kInt8}, {"uchar", PlyType::kUint8}, {"uint8", PlyType::kUint8},
-      {"short", PlyType::kInt16}, {"int16", PlyType::kInt16}, {"ushort", PlyType::kUint16},
-      {"uint16", PlyType::kUint16}, {"int", PlyType::kInt32}, {"int32", PlyType::kInt32}, {"uint", PlyType::kUint32},
-      {"uint32", PlyType::kUint32}, {"float", PlyType::kFloat32}, {"float32", PlyType::kFloat32},
-      {"double", PlyType::kFloat64}, {"float64", PlyType::kFloat64},
-  }};
-  for (const auto& [n, t] : kNames)
-    if (n == name) return t;
+  for (std::size_t i = 0; i < kTypes.size(); ++i)
+    if (kTypes[i].name == name || kTypes[i].alias == name) return static_cast<PlyType>(i);
   return std::nullopt;
 }
 
-const char* TypeName(PlyType t) {
-  static constexpr std::array<const char*, 8> kNames = {"int8", "uint8", "int16", "uint16", "int32", "uint32", "float32", "float64"};
-  return kNames[static_cast<int>(t)];
-}
-
-int SizeOf(PlyType t) {
-  static constexpr std::array<int, 8> kSizes = {1, 1, 2, 2, 4, 4, 4, 8};
-  return kSizes[static_cast<int>(t)];
-}
-
-bool IsInteger(PlyType t) { return t != PlyType::kFloat32 && t != PlyType::kFloat64; }
+const char* TypeName(PlyType t) { return Info(t).name.data(); }
+int SizeOf(PlyType t) { return Info(t).size; }
+bool IsInteger(PlyType t) { return Info(t).integer; }
 
 // Whether a value read as a double is one the type holds (finite, integral for integer types).
 bool Fits(PlyType t, double v) {
-  if (!std::isfinite(v)) return false;
-  switch (t) {
-    case PlyType::kInt8: return v == std::floor(v) && v >= -128 && v <= 127;
-    case PlyType::kUint8: return v == std::floor(v) && v >= 0 && v <= 255;
-    case PlyType::kInt16: return v == std::floor(v) && v >= -32768 && v <= 32767;
-    case PlyType::kUint16: return v == std::floor(v) && v >= 0 && v <= 65535;
-    case PlyType::kInt32: return v == std::floor(v) && v >= -2147483648.0 && v <= 2147483647.0;
-    case PlyType::kUint32: return v == std::floor(v) && v >= 0 && v <= 4294967295.0;
-    case PlyType::kFloat32: return std::abs(v) <= std::numeric_limits<float>::max();
-    case PlyType::kFloat64: return true;
-  }
-  return false;
+  const TypeInfo& info = Info(t);
+  return std::isfinite(v) && (!info.integer || v == std::floor(v)) && v >= info.min && v <= info.max;
 }
 
 class HeaderReader {

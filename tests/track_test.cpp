@@ -332,6 +332,24 @@ TEST(Tracker, HoldsAnArmWhollyHiddenInLongThrowDepth) {
   EXPECT_GE(o.within_10mm, 0.9 * o.scored) << o.within_10mm << " of " << o.scored;
 }
 
+// Long-throw fits on a mostly hidden arm: the built-in robot's dev stream 2 (bench seed). Fits
+// that saw a few tenths of the visible model erred the same way frame after frame and walked the
+// filter past 10 mm (251 of 300 scored frames within 10 mm here, 285 now; the KR5 arc's dev stream 4
+// failed alike). Such fits are no longer fused, and the fit leaves out depth in front of
+// the model by more than the agreement's tolerance (it kept occluder depth up to 8 cm in front).
+TEST(Tracker, HoldsThroughFitsOnAMostlyHiddenArm) {
+  auto robot = Builtin();
+  ASSERT_TRUE(robot);
+  sim::TrackSimOptions options;
+  options.kind = sim::FrameKind::kLongThrow;
+  options.duration_s = 12.0;
+  const StreamOutcome o = RunStream(robot, options, 11387873304532188844ull);
+  ASSERT_GT(o.scored, 250);
+  EXPECT_EQ(o.rereferences_before_jump, 0);
+  EXPECT_GE(o.recovery_s, 0.0) << "never recovered from the jump";
+  EXPECT_GE(o.within_10mm, 0.93 * o.scored) << o.within_10mm << " of " << o.scored;
+}
+
 TEST(Tracker, UnwrapsAhatDepth) {
   auto robot = Builtin();
   ASSERT_TRUE(robot);

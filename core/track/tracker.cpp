@@ -135,7 +135,11 @@ struct Tracker::Impl {
   Measurement Measure(const DepthFrame& f, const Iso3& T0, const std::vector<double>& distances, int iterations,
                       TrackResult* out, ModelView* view_out = nullptr) const;
   PointCloud DepthPoints(const DepthFrame& f, const ModelView& view, const Iso3& T_world_base, const Aabb& crop,
-                         float occluder_margin = 0) const;
+                         bool drop_occluders = false) const;
+  // How far a depth may lie from the model's at a pixel and still agree with it (range z): the
+  // camera-pose error and the sensor's noise, both growing with range. Nearer than that is an
+  // occluder, farther the model is seen through.
+  float Tolerance(float z) const { return static_cast<float>(settings.agree_m + settings.agree_range_fraction * z); }
   struct Agreement {
     double agreement = 0.0, coverage = 0.0, support = 0.0, readable = 0.0;
     std::size_t agree = 0, through = 0, occluded = 0, ambiguous = 0, resolved = 0;
@@ -176,7 +180,7 @@ Status Tracker::Impl::PoseModel(const JointValues& given) {
 }
 
 PointCloud Tracker::Impl::DepthPoints(const DepthFrame& f, const ModelView& view, const Iso3& T_world_base,
-                                      const Aabb& crop, float occluder_margin) const {
+                                      const Aabb& crop, bool drop_occluders) const {
   const DepthIntrinsics& c = f.intrinsics;
   const int s = view.stride, gw = c.width / s, gh = c.height / s;
   const Eigen::Isometry3f T_base_camera = (T_world_base.inverse() * f.T_world_camera).cast<float>();
@@ -192,8 +196,9 @@ PointCloud Tracker::Impl::DepthPoints(const DepthFrame& f, const ModelView& view
         if (expected <= 0) continue;
         d = Unwrapped(d, expected, f.wrap_m);
       }
-      // An occluder: depth this far in front of the model's own at this pixel (0: all kept).
-      if (occluder_margin > 0 && expected > 0 && d < expected - occluder_margin) continue;
+      // An occluder, as AgreementAt counts one: depth in front of the model's own at this pixel
+      // by more than the agreement's tolerance.
+      if (drop_occluders && expected > 0 && d < expected - Tolerance(expected)) continue;
       const Vec3f p_cam = (c.Ray(gu * s, gv * s) * d).cast<float>();
       if (!crop.Contains(T_base_camera * p_cam)) continue;
       out.points.push_back(T_world_camera * p_cam);
@@ -217,7 +222,7 @@ Tracker::Impl::Agreement Tracker::Impl::AgreementAt(const DepthFrame& f, const M
     if (u < 0 || v < 0 || u >= c.width || v >= c.height) continue;
     const float d = Unwrapped(f.DepthAt(u, v), q.z(), f.wrap_m);
     if (d <= 0) continue;
-    const float tol = static_cast<float>(settings.agree_m + settings.agree_range_fraction * q.z());
+    const float tol = Tolerance(q.z());
     if (std::abs(d - q.z()) < tol) ++agree;
     // A wrapping sensor cannot tell depth behind the model from an occluder more than half a
     // wrap in front of it (aliased behind): only when that nearer alias would lie behind the
@@ -248,7 +253,7 @@ bool Tracker::Impl::ExplainedBy(const ModelView& other, const DepthFrame& f, int
   const float z = other.z_depth[static_cast<std::size_t>(gv) * gw + gu];
   if (z <= 0) return false;
   const float d = Unwrapped(f.DepthAt(u, v), z, f.wrap_m);
-  return d > 0 && std::abs(d - z) < settings.agree_m + settings.agree_range_fraction * z;
+  return d > 0 && std::abs(d - z) < Tolerance(z);
 }
 
 // ICP's 4-DoF covariance at the fit, mapped from its perturbation of T_base_world to the
@@ -310,12 +315,14 @@ Measurement Tracker::Impl::Measure(const DepthFrame& f, const Iso3& T0, const st
   m.start_hidden = start.agree + start.through == 0 && start.occluded + start.ambiguous > 0;
   Aabb crop = view.bounds_base.Grown(static_cast<float>(settings.crop_margin_m));
   crop.min.z() = view.bounds_base.min.z() + static_cast<float>(settings.floor_clearance_m);
-  // Near the start pose the robot's surface lies within the crop margin of the model's; depth
-  // further in front is an occluder (at the long-throw walk's far end 85-95 % of the visible
-  // model pixels), which only pulls the fit off. This rule and the two below hold for unwrapped
+  // Depth in front of the model by more than the agreement's tolerance is an occluder (at the
+  // long-throw walk's far end 85-95 % of the visible model pixels), which only pulls the fit off;
+  // the fit leaves out the pixels the agreement counts as occluded (until 2026-12-03 the bar was
+  // the crop margin, 8 cm, which kept occluder depth 5-8 cm in front of the arm at 2 m range).
+  // This rule and the two below hold for unwrapped
   // (long-throw) frames only: in AHAT frames they recovered the KR5 arc's lost stream but lost
   // one of the SIA10D's (not yet understood; docs/tracking.md).
-  PointCloud source = DepthPoints(f, view, T0, crop, Wraps(f) ? 0.0f : static_cast<float>(settings.crop_margin_m));
+  PointCloud source = DepthPoints(f, view, T0, crop, !Wraps(f));
   m.depth_points = source.size();
   out->model_ms += lap.Lap();
   if (m.model_points < settings.min_model_points || source.size() < settings.min_model_points) return m;
@@ -578,6 +585,7 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
     // jump either (it is not clearly better than its own start).
     if (!Wraps(frame) && m.support < m.start_support - s.max_fit_support_drop && in_gate(m))
       return finish(TrackState::kTracking);
+    if (!Wraps(frame) && m.coverage < s.min_fuse_coverage && in_gate(m)) return finish(TrackState::kTracking);
     // Rejected measurements become a world jump only while they explain the frames clearly better.
     const FilterVerdict v = I.filter.Update(PoseToState(m.T_world_base), m.covariance, frame.time_s, clearly_better(m));
     I.fused = v == FilterVerdict::kAccepted || (I.fused && v == FilterVerdict::kRejected);

@@ -5,6 +5,7 @@
 #include <cmath>
 #include <memory>
 #include <numbers>
+#include <optional>
 
 #include "arref/fusion/raycaster.h"
 #include "arref/scene/metrics.h"
@@ -270,16 +271,24 @@ std::shared_ptr<const RobotModel> SharedRobot(const std::string& urdf) {
 
 // One of the bench's 12 s streams (the jump half way) of a vendor robot, by its simulator seed;
 // no frames scored when the robot does not load.
-StreamOutcome BenchStream(const std::string& urdf, std::uint64_t seed, sim::FrameKind kind) {
-  auto robot = SharedRobot(urdf);
+// A simulated stream of `kind` frames by its seed; the world jumps at the simulator's default
+// time unless jump_at_s is given.
+StreamOutcome StreamOf(std::shared_ptr<const RobotModel> robot, sim::FrameKind kind, double duration_s,
+                       std::uint64_t seed, std::optional<double> jump_at_s = std::nullopt) {
   if (!robot) {
-    ADD_FAILURE() << urdf << " does not load";
+    ADD_FAILURE() << "the robot does not load";
     return {};
   }
   sim::TrackSimOptions options;
   options.kind = kind;
-  options.duration_s = 12.0;
+  options.duration_s = duration_s;
+  if (jump_at_s) options.jump_at_s = *jump_at_s;
   return RunStream(robot, options, seed);
+}
+
+// A stream as the bench draws it (12 s), by the bench's simulator seed.
+StreamOutcome BenchStream(const std::string& urdf, std::uint64_t seed, sim::FrameKind kind) {
+  return StreamOf(SharedRobot(urdf), kind, 12.0, seed);
 }
 
 StreamOutcome AhatDevStream(const std::string& urdf, std::uint64_t seed) {
@@ -338,12 +347,7 @@ TEST(Tracker, HoldsAnArmWhollyHiddenInLongThrowDepth) {
 // failed alike). Such fits are no longer fused, and the fit leaves out depth in front of
 // the model by more than the agreement's tolerance (it kept occluder depth up to 8 cm in front).
 TEST(Tracker, HoldsThroughFitsOnAMostlyHiddenArm) {
-  auto robot = Builtin();
-  ASSERT_TRUE(robot);
-  sim::TrackSimOptions options;
-  options.kind = sim::FrameKind::kLongThrow;
-  options.duration_s = 12.0;
-  const StreamOutcome o = RunStream(robot, options, 11387873304532188844ull);
+  const StreamOutcome o = StreamOf(Builtin(), sim::FrameKind::kLongThrow, 12.0, 11387873304532188844ull);
   ASSERT_GT(o.scored, 250);
   EXPECT_EQ(o.rereferences_before_jump, 0);
   EXPECT_GE(o.recovery_s, 0.0) << "never recovered from the jump";
@@ -351,13 +355,7 @@ TEST(Tracker, HoldsThroughFitsOnAMostlyHiddenArm) {
 }
 
 TEST(Tracker, UnwrapsAhatDepth) {
-  auto robot = Builtin();
-  ASSERT_TRUE(robot);
-  sim::TrackSimOptions options;
-  options.kind = sim::FrameKind::kAhat;
-  options.duration_s = 3.0;
-  options.jump_at_s = 100.0;  // none
-  const StreamOutcome o = RunStream(robot, options, 12);
+  const StreamOutcome o = StreamOf(Builtin(), sim::FrameKind::kAhat, 3.0, 12, 100.0);  // no jump
   ASSERT_GT(o.scored, 60);
   EXPECT_GE(o.within_10mm, 0.9 * o.scored) << o.within_10mm << " of " << o.scored;
   EXPECT_EQ(o.rereferences_before_jump, 0);

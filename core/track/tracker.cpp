@@ -319,9 +319,9 @@ Measurement Tracker::Impl::Measure(const DepthFrame& f, const Iso3& T0, const st
   // long-throw walk's far end 85-95 % of the visible model pixels), which only pulls the fit off;
   // the fit leaves out the pixels the agreement counts as occluded (until 2026-12-03 the bar was
   // the crop margin, 8 cm, which kept occluder depth 5-8 cm in front of the arm at 2 m range).
-  // This rule and the two below hold for unwrapped
-  // (long-throw) frames only: in AHAT frames they recovered the KR5 arc's lost stream but lost
-  // one of the SIA10D's (not yet understood; docs/tracking.md).
+  // This rule and the two below hold for unwrapped (long-throw) frames only: in AHAT frames they
+  // recovered the KR5 arc's lost stream but lost one of the SIA10D's (not yet understood;
+  // docs/tracking.md).
   PointCloud source = DepthPoints(f, view, T0, crop, !Wraps(f));
   m.depth_points = source.size();
   out->model_ms += lap.Lap();
@@ -585,6 +585,7 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
     // jump either (it is not clearly better than its own start).
     if (!Wraps(frame) && m.support < m.start_support - s.max_fit_support_drop && in_gate(m))
       return finish(TrackState::kTracking);
+    // A fit on a few unhidden pixels errs the same way frame after frame (min_fuse_coverage).
     if (!Wraps(frame) && m.coverage < s.min_fuse_coverage && in_gate(m)) return finish(TrackState::kTracking);
     // Rejected measurements become a world jump only while they explain the frames clearly better.
     const FilterVerdict v = I.filter.Update(PoseToState(m.T_world_base), m.covariance, frame.time_s, clearly_better(m));

@@ -63,7 +63,7 @@ struct TrackerSettings {
   // In unwrapped frames a fit within the gate covering less than this share of the visible model
   // pixels is not fused (the pose holds): the few unhidden pixels of a mostly hidden arm leave
   // some directions unconstrained, and such fits erred the same way frame after frame (the KR5
-  // arc's dev stream 4: fits covering 22-45 % were 15-40 mm off for 1.5 s and walked the filter
+  // arc's dev stream 4: fits covering 22-45 % were 12-42 mm off for 1.5 s and walked the filter
   // from 8 to 14 mm), which dividing their covariance by the coverage did not stop.
   double min_fuse_coverage = 0.3;
   std::size_t min_model_points = 60;

@@ -139,7 +139,7 @@ struct Tracker::Impl {
   // How far a depth may lie from the model's at a pixel and still agree with it (range z): the
   // camera-pose error and the sensor's noise, both growing with range. Nearer than that is an
   // occluder, farther the model is seen through.
-  float Tolerance(float z) const { return static_cast<float>(settings.agree_m + settings.agree_range_fraction * z); }
+  double Tolerance(double z) const { return settings.agree_m + settings.agree_range_fraction * z; }
   struct Agreement {
     double agreement = 0.0, coverage = 0.0, support = 0.0, readable = 0.0;
     std::size_t agree = 0, through = 0, occluded = 0, ambiguous = 0, resolved = 0;
@@ -198,7 +198,7 @@ PointCloud Tracker::Impl::DepthPoints(const DepthFrame& f, const ModelView& view
       }
       // An occluder, as AgreementAt counts one: depth in front of the model's own at this pixel
       // by more than the agreement's tolerance.
-      if (drop_occluders && expected > 0 && d < expected - Tolerance(expected)) continue;
+      if (drop_occluders && expected > 0 && d < expected - static_cast<float>(Tolerance(expected))) continue;
       const Vec3f p_cam = (c.Ray(gu * s, gv * s) * d).cast<float>();
       if (!crop.Contains(T_base_camera * p_cam)) continue;
       out.points.push_back(T_world_camera * p_cam);
@@ -222,7 +222,7 @@ Tracker::Impl::Agreement Tracker::Impl::AgreementAt(const DepthFrame& f, const M
     if (u < 0 || v < 0 || u >= c.width || v >= c.height) continue;
     const float d = Unwrapped(f.DepthAt(u, v), q.z(), f.wrap_m);
     if (d <= 0) continue;
-    const float tol = Tolerance(q.z());
+    const float tol = static_cast<float>(Tolerance(q.z()));
     if (std::abs(d - q.z()) < tol) ++agree;
     // A wrapping sensor cannot tell depth behind the model from an occluder more than half a
     // wrap in front of it (aliased behind): only when that nearer alias would lie behind the

@@ -230,7 +230,7 @@ bool ValueReader::BeginRow() {
   std::string line;
   if (!std::getline(in_, line)) return false;
   row_.clear();
-  row_.str(line);
+  row_.str(std::move(line));  // the line's buffer moves into the stream: no copy per row
   return true;
 }
 

@@ -576,17 +576,17 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
       I.seed.reset();
       return restart(m);
     }
-    // A fit within the gate that explains the frame worse than the pose it started from was
-    // pulled off by depth that is not the robot (clutter inside the crop: at the long-throw
-    // walk's far end such fits ended 40-220 mm away from a start 4-9 mm off, and walked the
-    // filter 10-32 mm off). A fit from a right start should explain the frame at least as well
-    // as its start (up to a few silhouette pixels: max_fit_support_drop), so the pose holds and
-    // the fit is not fused. Outside the gate nothing changes: such a fit is no evidence of a
-    // jump either (it is not clearly better than its own start).
-    if (!Wraps(frame) && m.support < m.start_support - s.max_fit_support_drop && in_gate(m))
-      return finish(TrackState::kTracking);
-    // A fit on a few unhidden pixels errs the same way frame after frame (min_fuse_coverage).
-    if (!Wraps(frame) && m.coverage < s.min_fuse_coverage && in_gate(m)) return finish(TrackState::kTracking);
+    // Two long-throw fits within the gate are not fused; the pose holds. One that explains the
+    // frame worse than the pose it started from was pulled off by depth that is not the robot
+    // (clutter inside the crop: at the long-throw walk's far end such fits ended 40-220 mm away
+    // from a start 4-9 mm off, and walked the filter 10-32 mm off); a fit from a right start
+    // explains the frame at least as well as its start, up to a few silhouette pixels
+    // (max_fit_support_drop). And one on a few unhidden pixels errs the same way frame after
+    // frame (min_fuse_coverage). Outside the gate nothing changes: such a fit is no evidence of
+    // a jump either (not clearly better: worse than its start, or covering too little).
+    const bool untrusted =
+        m.support < m.start_support - s.max_fit_support_drop || m.coverage < s.min_fuse_coverage;
+    if (!Wraps(frame) && untrusted && in_gate(m)) return finish(TrackState::kTracking);
     // Rejected measurements become a world jump only while they explain the frames clearly better.
     const FilterVerdict v = I.filter.Update(PoseToState(m.T_world_base), m.covariance, frame.time_s, clearly_better(m));
     I.fused = v == FilterVerdict::kAccepted || (I.fused && v == FilterVerdict::kRejected);

@@ -33,30 +33,31 @@ std::chrono::milliseconds Seconds(double s) { return std::chrono::milliseconds(s
 // ---------------------------------------------------------------- Session: life cycle
 
 Session::Session(tcp::socket socket, ServerContext& context, std::uint64_t id)
-    : transport_(std::move(socket), context.tls),
+    : Session(MakeSocketTransport(std::move(socket), context.tls), context, id) {}
+
+Session::Session(std::unique_ptr<Transport> transport, ServerContext& context, std::uint64_t id)
+    : transport_(std::move(transport)),
       ctx_(context),
       id_(id),
-      handshaking_(transport_.encrypted()),
+      handshaking_(transport_->encrypted()),
+      peer_(transport_->peer()),
       rx_(std::min(kMaxHelloBytes, context.config.limits.max_message_bytes), 4 * kReadChunk),
-      idle_timer_(transport_.executor()),
-      hello_timer_(transport_.executor()),
-      frame_timer_(transport_.executor()),
-      write_timer_(transport_.executor()),
-      linger_timer_(transport_.executor()) {
-  boost::system::error_code ec;
-  const auto endpoint = transport_.socket().remote_endpoint(ec);
-  peer_ = ec ? "?" : endpoint.address().to_string() + ":" + std::to_string(endpoint.port());
+      idle_timer_(transport_->executor()),
+      hello_timer_(transport_->executor()),
+      frame_timer_(transport_->executor()),
+      write_timer_(transport_->executor()),
+      linger_timer_(transport_->executor()) {
   connected_unix_s_ = std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
 }
 
 Session::~Session() { spdlog::debug("session {} destroyed", id_); }
 
 void Session::Start() {
-  net::dispatch(transport_.executor(), [self = shared_from_this()] {
-    spdlog::info("session {}: connected from {}{}", self->id_, self->peer_, self->transport_.encrypted() ? " (TLS)" : "");
+  net::dispatch(transport_->executor(), [self = shared_from_this()] {
+    spdlog::info("session {}: connected from {}{}", self->id_, self->peer_, self->transport_->encrypted() ? " (TLS)" : "");
     self->ArmIdleTimer();
     self->ArmHelloTimer();
-    if (self->transport_.encrypted())
+    if (self->transport_->encrypted())
       self->StartTls();
     else
       self->ReadMore();
@@ -64,7 +65,7 @@ void Session::Start() {
 }
 
 void Session::StartTls() {
-  transport_.AsyncHandshake([self = shared_from_this()](const boost::system::error_code& ec) {
+  transport_->AsyncHandshake([self = shared_from_this()](const boost::system::error_code& ec) {
     self->OnTlsHandshake(ec);
   });
 }
@@ -74,7 +75,7 @@ void Session::StartTls() {
 void Session::OnTlsHandshake(const boost::system::error_code& ec) {
   if (state_ >= State::kClosing) return;
   if (ec) {
-    const std::string refused = transport_.PeerVerifyError();
+    const std::string refused = transport_->PeerVerifyError();
     const std::string why = ec.message() + (refused.empty() ? "" : " (the client's certificate: " + refused + ")");
     spdlog::warn("session {} ({}): TLS handshake failed: {}", id_, peer_, why);
     return CloseNow("TLS handshake failed: " + why);
@@ -84,7 +85,7 @@ void Session::OnTlsHandshake(const boost::system::error_code& ec) {
 }
 
 void Session::Reject(pb::ErrorCode code, const std::string& message) {
-  net::dispatch(transport_.executor(), [self = shared_from_this(), code, message] {
+  net::dispatch(transport_->executor(), [self = shared_from_this(), code, message] {
     self->FailAndClose(code, message);
   });
 }
@@ -145,7 +146,7 @@ void Session::ReadMore() {
   if (state_ >= State::kClosing) return;
   const auto space = rx_.Buffer(kReadChunk);
   reading_ = true;
-  transport_.AsyncReadSome(net::buffer(space.data(), space.size()),
+  transport_->AsyncReadSome(net::buffer(space.data(), space.size()),
                            [self = shared_from_this()](const boost::system::error_code& ec, std::size_t n) {
                              self->OnRead(ec, n);
                            });
@@ -619,8 +620,9 @@ void Session::AttachCallbacks(Job& job) {
       r->set_joints_moved_while_mapping(true);
       r->set_joint_motion_rad(joint_motion);
       r->set_message(r->message() + (r->message().empty() ? "" : "; ") +
-                     fmt::format("the joints moved by up to {:.2f} rad while the map was made: the arm's mesh is "
-                                 "smeared (TrackRequest with depth frames follows a moving robot)", joint_motion));
+                     fmt::format("the joints moved by up to {} rad while the map was made: the arm's mesh is "
+                                 "smeared (TrackRequest with depth frames follows a moving robot)",
+                                 std::round(joint_motion * 100) / 100));  // {:.2f} would print every digit of 1e300
     }
     const auto frame = wire::SharedFrame(message);
     spdlog::info("session {}: request {} {} ({:.0f} ms queued, {:.0f} ms running){}", done.session_id, done.request_id,
@@ -676,13 +678,13 @@ void Session::KeepRecording(const Status& written) {
 // ---------------------------------------------------------------- writing
 
 void Session::SendFrame(std::shared_ptr<const std::string> frame) {
-  net::post(transport_.executor(), [self = shared_from_this(), frame = std::move(frame)]() mutable {
+  net::post(transport_->executor(), [self = shared_from_this(), frame = std::move(frame)]() mutable {
     self->Enqueue(std::move(frame));
   });
 }
 
 void Session::DeliverResult(std::uint64_t request_id, std::shared_ptr<const std::string> frame) {
-  net::post(transport_.executor(), [self = shared_from_this(), request_id, frame = std::move(frame)]() mutable {
+  net::post(transport_->executor(), [self = shared_from_this(), request_id, frame = std::move(frame)]() mutable {
     self->in_flight_.erase(request_id);
     self->RecordAnswer(request_id);
     self->Enqueue(std::move(frame));
@@ -692,7 +694,7 @@ void Session::DeliverResult(std::uint64_t request_id, std::shared_ptr<const std:
 }
 
 void Session::NotifyShutdown(double grace_s) {
-  net::post(transport_.executor(), [self = shared_from_this(), grace_s] {
+  net::post(transport_->executor(), [self = shared_from_this(), grace_s] {
     if (self->shutdown_notified_ || self->state_ != State::kReady) return;
     self->shutdown_notified_ = true;
     pb::ServerMessage message;
@@ -703,7 +705,7 @@ void Session::NotifyShutdown(double grace_s) {
 }
 
 void Session::CloseGracefully(const std::string& reason) {
-  net::post(transport_.executor(), [self = shared_from_this(), reason] { self->StartClosing(reason); });
+  net::post(transport_->executor(), [self = shared_from_this(), reason] { self->StartClosing(reason); });
 }
 
 void Session::Send(const pb::ServerMessage& message) { Enqueue(wire::SharedFrame(message)); }
@@ -743,7 +745,7 @@ void Session::WriteNext() {
     self->CloseNow(fmt::format("dropped: a write stalled for {} s (server.send_timeout_s)",
                                self->ctx_.config.send_timeout_s));
   });
-  transport_.AsyncWrite(net::buffer(*write_queue_.front()),
+  transport_->AsyncWrite(net::buffer(*write_queue_.front()),
                         [self = shared_from_this()](const boost::system::error_code& ec, std::size_t n) {
                           self->OnWrite(ec, n);
                         });
@@ -778,7 +780,7 @@ void Session::StartClosing(const std::string& reason) {
   idle_timer_.cancel();
   hello_timer_.cancel();
   frame_timer_.cancel();
-  transport_.ShutdownReceive();  // ends the pending read
+  transport_->ShutdownReceive();  // ends the pending read
   if (!writing_) return FinishClosing();
   linger_timer_.expires_after(kLinger);
   linger_timer_.async_wait([self = shared_from_this()](const boost::system::error_code& ec) {
@@ -794,7 +796,7 @@ void Session::FinishClosing() {
   if (reading_ || transport_closing_) return;  // OnRead comes back here once the read has ended
   transport_closing_ = true;
   linger_timer_.cancel();
-  transport_.AsyncCloseNotify(kCloseNotifyDeadline, [self = shared_from_this()] {
+  transport_->AsyncCloseNotify(kCloseNotifyDeadline, [self = shared_from_this()] {
     self->CloseNow(self->close_reason_);
   });
 }
@@ -812,7 +814,7 @@ void Session::CloseNow(const std::string& reason) {
   frame_timer_.cancel();
   write_timer_.cancel();
   linger_timer_.cancel();
-  transport_.Close();
+  transport_->Close();
   write_queue_.clear();
   write_queue_bytes_ = 0;
   frame_memory_.Release();

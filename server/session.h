@@ -63,7 +63,10 @@ constexpr std::size_t kMaxPingPayload = 64 * 1024;
 
 class Session : public TrackingSink, public std::enable_shared_from_this<Session> {
  public:
+  // Over a TCP connection (plain or TLS, as the context says).
   Session(tcp::socket socket, ServerContext& context, std::uint64_t id);
+  // Over any transport (the fuzz harness feeds bytes from memory).
+  Session(std::unique_ptr<Transport> transport, ServerContext& context, std::uint64_t id);
   ~Session();
 
   std::uint64_t id() const override { return id_; }
@@ -138,7 +141,7 @@ class Session : public TrackingSink, public std::enable_shared_from_this<Session
   void FinishClosing();                       // after StartClosing, once every reply is written
   void CloseNow(const std::string& reason);  // drops unsent data
 
-  Transport transport_;
+  std::unique_ptr<Transport> transport_;
   ServerContext& ctx_;
   const std::uint64_t id_;
   State state_ = State::kAwaitHello;

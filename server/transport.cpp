@@ -115,50 +115,74 @@ Result<std::unique_ptr<TlsContext>> TlsContext::Load(const TlsConfig& config) {
 
 TlsContext::~TlsContext() = default;
 
-// ---------------------------------------------------------------- Transport
+// ---------------------------------------------------------------- SocketTransport
 
-struct Transport::Tls {
-  Tls(tcp::socket& socket, ssl::context& context) : stream(socket, context), shutdown_timer(socket.get_executor()) {}
-  ssl::stream<tcp::socket&> stream;
-  net::steady_timer shutdown_timer;
+namespace {
+
+class SocketTransport final : public Transport {
+ public:
+  // The TLS layer refers to socket_, so a SocketTransport stays in place (held by pointer).
+  SocketTransport(tcp::socket socket, TlsContext* tls) : socket_(std::move(socket)) {
+    if (tls) tls_ = std::make_unique<Tls>(socket_, tls->native());
+  }
+
+  bool encrypted() const override { return tls_ != nullptr; }
+  net::any_io_executor executor() override { return socket_.get_executor(); }
+
+  std::string peer() override {
+    boost::system::error_code ec;
+    const auto endpoint = socket_.remote_endpoint(ec);
+    return ec ? "?" : endpoint.address().to_string() + ":" + std::to_string(endpoint.port());
+  }
+
+  void AsyncHandshake(DoneHandler done) override {
+    tls_->stream.async_handshake(ssl::stream_base::server, std::move(done));
+  }
+
+  std::string PeerVerifyError() override {
+    if (!tls_) return "";
+    const long verify = SSL_get_verify_result(tls_->stream.native_handle());
+    return verify == X509_V_OK ? "" : X509_verify_cert_error_string(verify);
+  }
+
+  void AsyncReadSome(net::mutable_buffer buffer, IoHandler done) override {
+    if (tls_)
+      tls_->stream.async_read_some(buffer, std::move(done));
+    else
+      socket_.async_read_some(buffer, std::move(done));
+  }
+
+  void AsyncWrite(net::const_buffer buffer, IoHandler done) override {
+    if (tls_)
+      net::async_write(tls_->stream, buffer, std::move(done));
+    else
+      net::async_write(socket_, buffer, std::move(done));
+  }
+
+  void ShutdownReceive() override {
+    boost::system::error_code ignored;
+    socket_.shutdown(tcp::socket::shutdown_receive, ignored);
+  }
+
+  void AsyncCloseNotify(std::chrono::milliseconds deadline, std::function<void()> done) override;
+
+  void Close() override {
+    boost::system::error_code ignored;
+    socket_.shutdown(tcp::socket::shutdown_both, ignored);
+    socket_.close(ignored);
+  }
+
+ private:
+  struct Tls {
+    Tls(tcp::socket& socket, ssl::context& context) : stream(socket, context), shutdown_timer(socket.get_executor()) {}
+    ssl::stream<tcp::socket&> stream;
+    net::steady_timer shutdown_timer;
+  };
+  tcp::socket socket_;
+  std::unique_ptr<Tls> tls_;
 };
 
-Transport::Transport(tcp::socket socket, TlsContext* tls) : socket_(std::move(socket)) {
-  if (tls) tls_ = std::make_unique<Tls>(socket_, tls->native());
-}
-
-Transport::~Transport() = default;
-
-void Transport::AsyncHandshake(DoneHandler done) {
-  tls_->stream.async_handshake(ssl::stream_base::server, std::move(done));
-}
-
-std::string Transport::PeerVerifyError() {
-  if (!tls_) return "";
-  const long verify = SSL_get_verify_result(tls_->stream.native_handle());
-  return verify == X509_V_OK ? "" : X509_verify_cert_error_string(verify);
-}
-
-void Transport::AsyncReadSome(net::mutable_buffer buffer, IoHandler done) {
-  if (tls_)
-    tls_->stream.async_read_some(buffer, std::move(done));
-  else
-    socket_.async_read_some(buffer, std::move(done));
-}
-
-void Transport::AsyncWrite(net::const_buffer buffer, IoHandler done) {
-  if (tls_)
-    net::async_write(tls_->stream, buffer, std::move(done));
-  else
-    net::async_write(socket_, buffer, std::move(done));
-}
-
-void Transport::ShutdownReceive() {
-  boost::system::error_code ignored;
-  socket_.shutdown(tcp::socket::shutdown_receive, ignored);
-}
-
-void Transport::AsyncCloseNotify(std::chrono::milliseconds deadline, std::function<void()> done) {
+void SocketTransport::AsyncCloseNotify(std::chrono::milliseconds deadline, std::function<void()> done) {
   if (!tls_) return done();
   // At the deadline, Close, which ends the shutdown with an error. Both handlers share `done`
   // (and what it holds, the session): neither outlives it.
@@ -174,10 +198,10 @@ void Transport::AsyncCloseNotify(std::chrono::milliseconds deadline, std::functi
   });
 }
 
-void Transport::Close() {
-  boost::system::error_code ignored;
-  socket_.shutdown(tcp::socket::shutdown_both, ignored);
-  socket_.close(ignored);
+}  // namespace
+
+std::unique_ptr<Transport> MakeSocketTransport(tcp::socket socket, TlsContext* tls) {
+  return std::make_unique<SocketTransport>(std::move(socket), tls);
 }
 
 bool Transport::IsEndOfStream(const boost::system::error_code& ec) {

@@ -40,30 +40,31 @@ class TlsContext {
   std::string description_;
 };
 
+// The byte stream under a session. Sessions see only this interface, so that the same session
+// code runs over a socket (MakeSocketTransport) and over bytes in memory (memory_transport.h,
+// for the fuzz harness). Every call is made on the session's strand; handlers never run inside
+// the call that starts the operation.
 class Transport {
  public:
   using IoHandler = std::function<void(const boost::system::error_code&, std::size_t)>;
   using DoneHandler = std::function<void(const boost::system::error_code&)>;
 
-  // tls == nullptr: plain TCP. The TLS layer refers to socket_, so a Transport stays in place.
-  Transport(tcp::socket socket, TlsContext* tls);
-  ~Transport();
-  Transport(const Transport&) = delete;
-  Transport& operator=(const Transport&) = delete;
+  virtual ~Transport() = default;
 
-  bool encrypted() const { return tls_ != nullptr; }
-  tcp::socket& socket() { return socket_; }
-  net::any_io_executor executor() { return socket_.get_executor(); }
+  virtual bool encrypted() const = 0;
+  virtual net::any_io_executor executor() = 0;
+  // Who is at the other end, for the logs ("address:port").
+  virtual std::string peer() = 0;
 
-  // The server side of the TLS handshake; a plain transport has none (call only when encrypted).
-  void AsyncHandshake(DoneHandler done);
+  // The server side of the TLS handshake (call only when encrypted).
+  virtual void AsyncHandshake(DoneHandler done) = 0;
   // Why the client's certificate was refused (e.g. "certificate has expired"), after a failed
   // handshake; "" when it was not (or there is no TLS).
-  std::string PeerVerifyError();
-  void AsyncReadSome(net::mutable_buffer buffer, IoHandler done);
-  void AsyncWrite(net::const_buffer buffer, IoHandler done);  // the whole buffer
+  virtual std::string PeerVerifyError() = 0;
+  virtual void AsyncReadSome(net::mutable_buffer buffer, IoHandler done) = 0;
+  virtual void AsyncWrite(net::const_buffer buffer, IoHandler done) = 0;  // the whole buffer
   // Ends a pending read (the client gets no more of our attention); writes may still finish.
-  void ShutdownReceive();
+  virtual void ShutdownReceive() = 0;
   // Before the Close of a connection the server ends on purpose, with no read or write pending
   // (Asio's SSL stream takes no shutdown beside them; after ShutdownReceive a pending read ends
   // at once): with TLS, sends close_notify, so that the client can tell a finished session from
@@ -71,18 +72,16 @@ class Transport {
   // for the peer's close_notify, and the receive side is shut); `deadline` bounds the sending,
   // and at the deadline the socket is closed, so a client that does not read cannot hold the
   // connection. `done` runs then (at once without TLS); the caller then calls Close.
-  void AsyncCloseNotify(std::chrono::milliseconds deadline, std::function<void()> done);
+  virtual void AsyncCloseNotify(std::chrono::milliseconds deadline, std::function<void()> done) = 0;
   // At once, without close_notify (a failed or dropped connection): the framing still tells a
   // client that its stream was cut.
-  void Close();
+  virtual void Close() = 0;
 
   // The client finished: end of file, or (TLS) the connection closed without close_notify.
   static bool IsEndOfStream(const boost::system::error_code& ec);
-
- private:
-  struct Tls;
-  tcp::socket socket_;
-  std::unique_ptr<Tls> tls_;
 };
+
+// A TCP connection; tls == nullptr: plain, else TLS over it (the server's certificate).
+std::unique_ptr<Transport> MakeSocketTransport(tcp::socket socket, TlsContext* tls);
 
 }  // namespace arref::server

@@ -1245,7 +1245,7 @@ TEST(ServerIntegration, ResultSaysWhenTheJointsMovedWhileMapping) {
     EXPECT_EQ(r.result().joints_moved_while_mapping(), moved > 0) << r.result().message();
     EXPECT_NEAR(r.result().joint_motion_rad(), moved, 1e-9);
     if (moved > 0) {
-      EXPECT_NE(r.result().message().find("moved by up to 0.30 rad"), std::string::npos) << r.result().message();
+      EXPECT_NE(r.result().message().find("moved by up to 0.3 rad"), std::string::npos) << r.result().message();
     }
   }
 }

@@ -43,7 +43,8 @@ TEST(JointHistory, InterpolatesHoldsAndRejectsBadSamples) {
   EXPECT_NEAR(late.staleness_s, 0.2, 1e-12);
   EXPECT_NEAR(late.joints.at("a"), 0.3, 1e-12);
   // Out of order, wrong size, non-finite: errors that leave the history as it was.
-  EXPECT_FALSE(h.Add(1.05, std::vector<double>{0.0, 0.0}).ok());
+  const Status older = h.Add(1.05, std::vector<double>{0.0, 0.0});
+  EXPECT_EQ(older.message(), "joint state at 1.05 s is not newer than the last one (1.1 s)");
   EXPECT_FALSE(h.Add(1.2, std::vector<double>{0.0}).ok());
   EXPECT_FALSE(h.Add(1.2, std::vector<double>{NAN, 0.0}).ok());
   EXPECT_FALSE(h.Add(1.2, JointValues{{"a", 0.0}}).ok());

@@ -18,7 +18,9 @@ Status JointHistory::Add(double time_s, const std::vector<double>& values) {
     if (!std::isfinite(values[i]))
       return Status::InvalidArgument(fmt::format("joint state: joint {} is not finite", names_[i]));
   if (!samples_.empty() && time_s <= samples_.back().time_s)
-    return Status::InvalidArgument(fmt::format("joint state at {:.6f} s is not newer than the last one ({:.6f} s)",
+    // Shortest round-trip form: the stamps as sent, however large, at no cost (a fixed
+    // precision prints every digit of a 1e300 the client may send).
+    return Status::InvalidArgument(fmt::format("joint state at {} s is not newer than the last one ({} s)",
                                                time_s, samples_.back().time_s));
   samples_.push_back({time_s, values});
   while (samples_.size() > settings_.max_samples || samples_.front().time_s < time_s - settings_.keep_s)

@@ -198,16 +198,21 @@ Result<SimFrame> TrackSimulator::Next() {
   f.depth_mm.assign(static_cast<std::size_t>(c.width) * c.height, 0);
   std::normal_distribution<double> noise(0.0, 1.0);
   std::uniform_real_distribution<double> u01(0.0, 1.0);
+  std::size_t robot_pixels = 0, robot_seen = 0;
   for (int v = 0; v < c.height; ++v)
     for (int u = 0; u < c.width; ++u) {
       const std::size_t p = static_cast<std::size_t>(v) * c.width + u;
       double z = props[p] > 0 ? props[p] / c.Ray(u, v).norm() : 0.0;
-      if (robot.z_depth[p] > 0 && (z <= 0 || robot.z_depth[p] < z)) z = robot.z_depth[p];
+      if (robot.z_depth[p] > 0) {
+        ++robot_pixels;
+        if (z <= 0 || robot.z_depth[p] < z) z = robot.z_depth[p], ++robot_seen;
+      }
       if (z <= 0 || u01(I.noise_rng) < I.o.dropout) continue;
       z += (I.o.depth_noise_fraction * z + I.o.depth_noise_floor_m) * noise(I.noise_rng);
       if (f.wrap_m > 0) z = std::fmod(z, f.wrap_m);
       f.depth_mm[p] = static_cast<std::uint16_t>(std::clamp(std::round(1000 * z), 0.0, 65535.0));
     }
+  out.robot_visible_fraction = robot_pixels > 0 ? static_cast<double>(robot_seen) / static_cast<double>(robot_pixels) : 0.0;
   const Iso3 T_world_cell = I.drift * I.T_world0_cell;
   std::normal_distribution<double> jm(0.0, I.o.pose_jitter_m), jr(0.0, I.o.pose_jitter_deg * kDeg);
   const Vec3 axis_angle(jr(I.noise_rng), jr(I.noise_rng), jr(I.noise_rng));

@@ -73,6 +73,9 @@ struct SimFrame {
   JointValues joints_true;                    // at exposure
   bool after_jump = false;
   double true_time_s = 0.0;
+  // Of the robot's pixels in the image, the share no prop hides (0 with none in view): a frame
+  // that shows little of the arm cannot place it, whatever the tracker does.
+  double robot_visible_fraction = 0.0;
 };
 
 class TrackSimulator {

@@ -42,8 +42,8 @@ class TlsContext {
 
 // The byte stream under a session. Sessions see only this interface, so that the same session
 // code runs over a socket (MakeSocketTransport) and over bytes in memory (memory_transport.h,
-// for the fuzz harness). Every call is made on the session's strand; handlers never run inside
-// the call that starts the operation.
+// for the fuzz harness). Every call is made on the session's strand; read, write and handshake
+// handlers never run inside the call that starts them.
 class Transport {
  public:
   using IoHandler = std::function<void(const boost::system::error_code&, std::size_t)>;

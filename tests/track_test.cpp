@@ -2,10 +2,12 @@
 // model's ray cast and the tracker on simulated streams with ground truth.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <memory>
 #include <numbers>
 #include <optional>
+#include <vector>
 
 #include "arref/fusion/raycaster.h"
 #include "arref/scene/metrics.h"
@@ -270,10 +272,8 @@ std::shared_ptr<const RobotModel> SharedRobot(const std::string& urdf) {
   return std::make_shared<const RobotModel>(std::move(*loaded));
 }
 
-// One of the bench's 12 s streams (the jump half way) of a vendor robot, by its simulator seed;
-// no frames scored when the robot does not load.
-// A simulated stream of `kind` frames by its seed; the world jumps at the simulator's default
-// time unless jump_at_s is given.
+// A simulated stream of `kind` frames by its simulator seed; the world jumps at the simulator's
+// default time (half way) unless jump_at_s is given. No frames scored when the robot does not load.
 StreamOutcome StreamOf(std::shared_ptr<const RobotModel> robot, sim::FrameKind kind, double duration_s,
                        std::uint64_t seed, std::optional<double> jump_at_s = std::nullopt) {
   if (!robot) {

@@ -41,7 +41,20 @@ def wait_for(predicate, what, timeout=WAIT_S):
         if value:
             return value
         time.sleep(0.1)
-    raise AssertionError(f"timed out waiting for {what}")
+    raise AssertionError(f"timed out waiting for {what() if callable(what) else what}")
+
+
+def start_bridge(ros, args, log_path):
+    """The bridge, once it has subscribed to the server and this node's /tf subscription has
+    connected to its publisher. /tf is not latched: what the bridge publishes before that
+    connection is made (asynchronously, through the master) never reaches this node, and on a
+    loaded machine that can be the first seconds of a stream."""
+    connected = ros["tf_subscriber"].get_num_connections
+    wait_for(lambda: connected() == 0, "the previous bridge's /tf connection to close")
+    bridge = Process([sys.executable, BRIDGE, *args], str(log_path), ros["env"])
+    wait_for(lambda: "publishing robot 'kr5'" in bridge.log(), f"the bridge to subscribe\n{bridge.log()}")
+    wait_for(lambda: connected() >= 1, f"this node's /tf subscription to connect to the bridge\n{bridge.log()}")
+    return bridge
 
 
 class Process:
@@ -95,9 +108,9 @@ def ros(tmp_path_factory):
         static_messages = []
         rospy.Subscriber("/tf_static", TFMessage, static_messages.append)
         dynamic = []  # (TFMessage, Unix time received)
-        rospy.Subscriber("/tf", TFMessage, lambda m: dynamic.append((m, time.time())))
+        tf_subscriber = rospy.Subscriber("/tf", TFMessage, lambda m: dynamic.append((m, time.time())))
         yield {"env": env, "buffer": buffer, "listener": listener, "static": static_messages, "dynamic": dynamic,
-               "folder": folder}
+               "tf_subscriber": tf_subscriber, "folder": folder}
         rospy.signal_shutdown("test done")
     finally:
         core.stop()
@@ -143,10 +156,9 @@ def assert_is_result(t, sent, result):
 def test_registration_appears_on_tf_and_survives_a_server_restart(ros, cell, tmp_path):
     port = free_port()
     server = ServerProcess(tmp_path, port=port)
-    bridge = Process([sys.executable, BRIDGE, "--port", str(port), "--robot", f"kr5:{CHILD}:{PARENT}",
-                      "--reconnect", "0.5"], str(tmp_path / "bridge.log"), ros["env"])
+    bridge = start_bridge(ros, ["--port", str(port), "--robot", f"kr5:{CHILD}:{PARENT}", "--reconnect", "0.5"],
+                          tmp_path / "bridge.log")
     try:
-        wait_for(lambda: "publishing robot 'kr5'" in bridge.log(), f"the bridge to subscribe\n{bridge.log()}")
         with Client("127.0.0.1", port) as c:
             c.upload_mesh(cell.mesh["ply"])
             first = c.register("kr5", seed=cell.seed(0), method="arref-icp-fast")
@@ -195,10 +207,9 @@ def test_tracking_updates_appear_on_tf_with_their_frame_times(ros, tmp_path):
     stream = TrackStream(tmp_path, 7)
     truth = TrackTruth.load(stream.truth_path)
     server = ServerProcess(tmp_path)
-    bridge = Process([sys.executable, BRIDGE, "--port", str(server.port), "--robot", f"kr5:{TRACK_CHILD}:{PARENT}"],
-                     str(tmp_path / "bridge.log"), ros["env"])
+    bridge = start_bridge(ros, ["--port", str(server.port), "--robot", f"kr5:{TRACK_CHILD}:{PARENT}"],
+                          tmp_path / "bridge.log")
     try:
-        wait_for(lambda: "publishing robot 'kr5'" in bridge.log(), f"the bridge to subscribe\n{bridge.log()}")
         with Client("127.0.0.1", server.port) as c:
             out = c.track("kr5", read_recording(stream.path).messages)
         assert not out.errors, [str(e) for e in out.errors]
@@ -208,7 +219,8 @@ def test_tracking_updates_appear_on_tf_with_their_frame_times(ros, tmp_path):
         def ours():
             return [(t, at) for m, at in ros["dynamic"] for t in m.transforms if t.child_frame_id == TRACK_CHILD]
 
-        wait_for(lambda: len(ours()) >= len(good), f"{len(good)} transforms on /tf\n{bridge.log()}")
+        wait_for(lambda: len(ours()) >= len(good),
+                 lambda: f"{len(good)} transforms on /tf ({len(ours())} came)\n{bridge.log()}")
         time.sleep(0.5)  # anything more would be published by now
         published = ours()
         # Exactly the updates in a good state, once each, in order, with their values; stamped
@@ -270,10 +282,9 @@ def test_a_registered_robot_that_is_then_tracked_moves_to_tf(ros, cell, tmp_path
     stream = TrackStream(tmp_path, 8, seconds=2.0)
     messages = read_recording(stream.path).messages
     server = ServerProcess(tmp_path)
-    bridge = Process([sys.executable, BRIDGE, "--port", str(server.port), "--robot", f"kr5:{SWITCH_CHILD}:{PARENT}"],
-                     str(tmp_path / "bridge.log"), ros["env"])
+    bridge = start_bridge(ros, ["--port", str(server.port), "--robot", f"kr5:{SWITCH_CHILD}:{PARENT}"],
+                          tmp_path / "bridge.log")
     try:
-        wait_for(lambda: "publishing robot 'kr5'" in bridge.log(), f"the bridge to subscribe\n{bridge.log()}")
         with Client("127.0.0.1", server.port) as c:
             c.upload_mesh(cell.mesh["ply"])
             registered = c.register("kr5", seed=cell.seed(0), method="arref-icp-fast")

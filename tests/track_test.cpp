@@ -169,7 +169,10 @@ struct StreamOutcome {
   double recovery_s = -1;
 };
 
-StreamOutcome RunStream(std::shared_ptr<const RobotModel> robot, sim::TrackSimOptions options, std::uint64_t seed) {
+// as_bench: the stream as `arref bench` runs it (its first guess for this seed, a round trip
+// every tenth frame), so that a bench stream's failure reproduces here.
+StreamOutcome RunStream(std::shared_ptr<const RobotModel> robot, sim::TrackSimOptions options, std::uint64_t seed,
+                        bool as_bench = false) {
   StreamOutcome out;
   auto simulator = sim::TrackSimulator::Create(robot, options, seed);
   EXPECT_TRUE(simulator.ok()) << simulator.status().ToString();
@@ -182,13 +185,16 @@ StreamOutcome RunStream(std::shared_ptr<const RobotModel> robot, sim::TrackSimOp
   JointHistory history(names);
   ClockOffsetEstimator clock;
   const PointCloud points = SampleSurface(*robot->PosedMesh({}), 2000, 1);
-  tracker->Seed(simulator->T_world_base_initial() * MakeYawPose(0.05, -0.04, 0.02, 4 * kDeg));
+  tracker->Seed(as_bench ? simulator->T_world_base_guess()
+                         : simulator->T_world_base_initial() * MakeYawPose(0.05, -0.04, 0.02, 4 * kDeg));
   double last = -1.0, jump_time = simulator->jump_time_s();
   bool recovered = false;
   for (int i = 0; i < simulator->frame_count(); ++i) {
     auto f = simulator->Next();
     if (!f.ok()) break;
-    EXPECT_TRUE(clock.Add(simulator->RoundTrip(f->true_time_s)).ok());
+    if (!as_bench || i % 10 == 0) {
+      EXPECT_TRUE(clock.Add(simulator->RoundTrip(f->true_time_s)).ok());
+    }
     for (const auto& s : simulator->JointSamples(last, f->true_time_s))
       EXPECT_TRUE(history.Add(s.sender_time_s, s.joints).ok());
     last = f->true_time_s;
@@ -275,7 +281,7 @@ std::shared_ptr<const RobotModel> SharedRobot(const std::string& urdf) {
 // A simulated stream of `kind` frames by its simulator seed; the world jumps at the simulator's
 // default time (half way) unless jump_at_s is given. No frames scored when the robot does not load.
 StreamOutcome StreamOf(std::shared_ptr<const RobotModel> robot, sim::FrameKind kind, double duration_s,
-                       std::uint64_t seed, std::optional<double> jump_at_s = std::nullopt) {
+                       std::uint64_t seed, std::optional<double> jump_at_s = std::nullopt, bool as_bench = false) {
   if (!robot) {
     ADD_FAILURE() << "the robot does not load";
     return {};
@@ -284,12 +290,12 @@ StreamOutcome StreamOf(std::shared_ptr<const RobotModel> robot, sim::FrameKind k
   options.kind = kind;
   options.duration_s = duration_s;
   if (jump_at_s) options.jump_at_s = *jump_at_s;
-  return RunStream(robot, options, seed);
+  return RunStream(robot, options, seed, as_bench);
 }
 
-// A stream as the bench draws it (12 s), by the bench's simulator seed.
+// A stream as the bench draws it (12 s, its first guess), by the bench's simulator seed.
 StreamOutcome BenchStream(const std::string& urdf, std::uint64_t seed, sim::FrameKind kind) {
-  return StreamOf(SharedRobot(urdf), kind, 12.0, seed);
+  return StreamOf(SharedRobot(urdf), kind, 12.0, seed, std::nullopt, true);
 }
 
 StreamOutcome AhatDevStream(const std::string& urdf, std::uint64_t seed) {
@@ -337,6 +343,35 @@ TEST(Tracker, HoldsAnArmWhollyHiddenInLongThrowDepth) {
   const StreamOutcome o =
       BenchStream("motoman_sia10d_support/urdf/sia10d.urdf", 13399427928172894881ull, sim::FrameKind::kLongThrow);
   ASSERT_GT(o.scored, 250);
+  EXPECT_EQ(o.rereferences_before_jump, 0);
+  EXPECT_GE(o.recovery_s, 0.0) << "never recovered from the jump";
+  EXPECT_GE(o.within_10mm, 0.9 * o.scored) << o.within_10mm << " of " << o.scored;
+}
+
+// The MH5's stream 0 of the held-out split at --rng-seed 5 in long-throw frames (a development
+// stream since that look): the world jumps 1.04 m at 6 s, and the filter's stale pose, laid where
+// the new view shows depth about as far as the arm's, went on agreeing 0.78-1.00 with a third of
+// its pixels for 2.2 s, so its fits held it (264 of 330 frames within 10 mm). While a jump is
+// pending the camera's view now challenges the filter on every frame and wins ties.
+TEST(Tracker, LeavesAStalePoseThatStillAgreesAfterAJump) {
+  ARREF_REQUIRE_SHARED();
+  const StreamOutcome o =
+      BenchStream("motoman_mh5_support/urdf/mh5.urdf", 14529820317515863789ull, sim::FrameKind::kLongThrow);
+  ASSERT_GT(o.scored, 250);
+  EXPECT_EQ(o.rereferences_before_jump, 0);
+  EXPECT_GE(o.recovery_s, 0.0) << "never recovered from the jump";
+  EXPECT_LE(o.recovery_s, 1.0);
+  EXPECT_GE(o.within_10mm, 0.95 * o.scored) << o.within_10mm << " of " << o.scored;
+}
+
+// The SIA10D's dev stream 5 in AHAT frames: the world jumps 0.31 m at 6 s with 6-16 % of the arm
+// readable. ICP from the camera's view slid along the props without fitting, and when a tie with
+// the filter's (hidden, agreeing 0.00) was enough for the view of a pending jump, a slid pose
+// 0.4 m off was taken and never left (225 of 495 frames within 10 mm); the view must fit.
+TEST(Tracker, TakesNoUnfittedViewOfAPendingJump) {
+  ARREF_REQUIRE_SHARED();
+  const StreamOutcome o = AhatDevStream("motoman_sia10d_support/urdf/sia10d.urdf", 5347685757459918866ull);
+  ASSERT_GT(o.scored, 400);
   EXPECT_EQ(o.rereferences_before_jump, 0);
   EXPECT_GE(o.recovery_s, 0.0) << "never recovered from the jump";
   EXPECT_GE(o.within_10mm, 0.9 * o.scored) << o.within_10mm << " of " << o.scored;

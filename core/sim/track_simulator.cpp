@@ -167,6 +167,12 @@ double TrackSimulator::jump_time_s() const { return impl_->jump_time_s; }
 JointValues TrackSimulator::JointsAt(double t_s) const { return impl_->Joints(t_s); }
 Iso3 TrackSimulator::T_world_base_initial() const { return impl_->T_world0_cell * impl_->cell.T_cell_base; }
 
+Iso3 TrackSimulator::T_world_base_guess() const {
+  std::mt19937_64 rng(impl_->seed ^ 0x5EEDull);
+  std::uniform_real_distribution<double> u(-1.0, 1.0);
+  return T_world_base_initial() * MakeYawPose(0.04 * u(rng), 0.04 * u(rng), 0.02 * u(rng), 4 * kDeg * u(rng));
+}
+
 Result<SimFrame> TrackSimulator::Next() {
   Impl& I = *impl_;
   if (I.next >= I.frames) return Status::FailedPrecondition("track simulator: the stream has ended");

@@ -113,10 +113,7 @@ Result<StreamStats> RunStream(const StreamSpec& spec) {
   ClockOffsetEstimator clock;
   ARREF_ASSIGN_OR_RETURN(const TriangleMesh home, spec.robot->PosedMesh({}));
   const std::vector<Vec3f> add_points = SampleSurface(home, 2000, 1).points;
-  // A seed as a one-shot registration leaves it, or a user's good guess: 5 cm, 4 deg off.
-  std::mt19937_64 rng(spec.seed ^ 0x5EEDull);
-  std::uniform_real_distribution<double> u(-1.0, 1.0);
-  tracker.Seed(simulator.T_world_base_initial() * MakeYawPose(0.04 * u(rng), 0.04 * u(rng), 0.02 * u(rng), 4 * kDeg * u(rng)));
+  tracker.Seed(simulator.T_world_base_guess());
   StreamStats s;
   s.duration_s = simulator.frame_count() / simulator.options().fps;
   const double jump = simulator.jump_time_s();

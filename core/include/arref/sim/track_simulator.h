@@ -100,6 +100,9 @@ class TrackSimulator {
   JointValues JointsAt(double t_s) const;
   // Where the first frame will see the robot, for the tracker's seed.
   Iso3 T_world_base_initial() const;
+  // A first guess of it as a one-shot registration leaves it, or a user's good guess: up to 4 cm
+  // across, 2 cm in height and 4 deg of yaw off, drawn from the simulator's seed (the bench's).
+  Iso3 T_world_base_guess() const;
 
  private:
   struct Impl;

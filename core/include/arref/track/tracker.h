@@ -82,6 +82,8 @@ struct TrackerSettings {
   // A camera faster than this between frames has had its world moved under it.
   double camera_jump_m_per_s = 3.0;
   double camera_jump_deg_per_s = 360.0;
+  // For this long after a camera jump the camera's view challenges the filter on every frame.
+  double jump_challenge_s = 3.0;
   PoseFilterSettings filter;
 };
 

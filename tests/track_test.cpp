@@ -219,6 +219,19 @@ StreamOutcome RunStream(std::shared_ptr<const RobotModel> robot, sim::TrackSimOp
   return out;
 }
 
+// A stream that scored more than min_scored frames, made no re-reference before the jump,
+// recovered from it (within max_recovery_s when given) and kept `share` of its frames within 10 mm.
+void ExpectTracked(const StreamOutcome& o, int min_scored, double share,
+                   std::optional<double> max_recovery_s = std::nullopt) {
+  ASSERT_GT(o.scored, min_scored);
+  EXPECT_EQ(o.rereferences_before_jump, 0);
+  EXPECT_GE(o.recovery_s, 0.0) << "never recovered from the jump";
+  if (max_recovery_s) {
+    EXPECT_LE(o.recovery_s, *max_recovery_s);
+  }
+  EXPECT_GE(o.within_10mm, share * o.scored) << o.within_10mm << " of " << o.scored;
+}
+
 TEST(Tracker, FollowsAMovingRobotThroughAWorldJumpLongThrow) {
   auto robot = Builtin();
   ASSERT_TRUE(robot);
@@ -311,10 +324,7 @@ StreamOutcome AhatDevStream(const std::string& urdf, std::uint64_t seed) {
 TEST(Tracker, HoldsAnArmHiddenBehindAPropInWrappedDepth) {
   ARREF_REQUIRE_SHARED();
   const StreamOutcome o = AhatDevStream("motoman_mh5_support/urdf/mh5.urdf", 3349603588497037793ull);
-  ASSERT_GT(o.scored, 400);
-  EXPECT_EQ(o.rereferences_before_jump, 0);
-  EXPECT_GE(o.recovery_s, 0.0) << "never recovered from the jump";
-  EXPECT_GE(o.within_10mm, 0.7 * o.scored) << o.within_10mm << " of " << o.scored;
+  ExpectTracked(o, 400, 0.7);
 }
 
 // The KR5 arc's dev stream 5 in AHAT frames: at the jump (6 s) the arm is 85 % hidden, most of it
@@ -325,11 +335,7 @@ TEST(Tracker, HoldsAnArmHiddenBehindAPropInWrappedDepth) {
 TEST(Tracker, TakesTheCameraViewOfAnArmHiddenByANearOccluder) {
   ARREF_REQUIRE_SHARED();
   const StreamOutcome o = AhatDevStream("kuka_kr5_support/urdf/kr5_arc.urdf", 2894739381230229186ull);
-  ASSERT_GT(o.scored, 400);
-  EXPECT_EQ(o.rereferences_before_jump, 0);
-  EXPECT_GE(o.recovery_s, 0.0) << "never recovered from the jump";
-  EXPECT_LE(o.recovery_s, 1.0);
-  EXPECT_GE(o.within_10mm, 0.9 * o.scored) << o.within_10mm << " of " << o.scored;
+  ExpectTracked(o, 400, 0.9, 1.0);
 }
 
 // The SIA10D's stream 0 of the held-out split in long-throw frames (made a development stream
@@ -342,10 +348,7 @@ TEST(Tracker, HoldsAnArmWhollyHiddenInLongThrowDepth) {
   ARREF_REQUIRE_SHARED();
   const StreamOutcome o =
       BenchStream("motoman_sia10d_support/urdf/sia10d.urdf", 13399427928172894881ull, sim::FrameKind::kLongThrow);
-  ASSERT_GT(o.scored, 250);
-  EXPECT_EQ(o.rereferences_before_jump, 0);
-  EXPECT_GE(o.recovery_s, 0.0) << "never recovered from the jump";
-  EXPECT_GE(o.within_10mm, 0.9 * o.scored) << o.within_10mm << " of " << o.scored;
+  ExpectTracked(o, 250, 0.9);
 }
 
 // The MH5's stream 0 of the held-out split at --rng-seed 5 in long-throw frames (a development
@@ -357,11 +360,7 @@ TEST(Tracker, LeavesAStalePoseThatStillAgreesAfterAJump) {
   ARREF_REQUIRE_SHARED();
   const StreamOutcome o =
       BenchStream("motoman_mh5_support/urdf/mh5.urdf", 14529820317515863789ull, sim::FrameKind::kLongThrow);
-  ASSERT_GT(o.scored, 250);
-  EXPECT_EQ(o.rereferences_before_jump, 0);
-  EXPECT_GE(o.recovery_s, 0.0) << "never recovered from the jump";
-  EXPECT_LE(o.recovery_s, 1.0);
-  EXPECT_GE(o.within_10mm, 0.95 * o.scored) << o.within_10mm << " of " << o.scored;
+  ExpectTracked(o, 250, 0.95, 1.0);
 }
 
 // The SIA10D's dev stream 5 in AHAT frames: the world jumps 0.31 m at 6 s with 6-16 % of the arm
@@ -371,10 +370,7 @@ TEST(Tracker, LeavesAStalePoseThatStillAgreesAfterAJump) {
 TEST(Tracker, TakesNoUnfittedViewOfAPendingJump) {
   ARREF_REQUIRE_SHARED();
   const StreamOutcome o = AhatDevStream("motoman_sia10d_support/urdf/sia10d.urdf", 5347685757459918866ull);
-  ASSERT_GT(o.scored, 400);
-  EXPECT_EQ(o.rereferences_before_jump, 0);
-  EXPECT_GE(o.recovery_s, 0.0) << "never recovered from the jump";
-  EXPECT_GE(o.within_10mm, 0.9 * o.scored) << o.within_10mm << " of " << o.scored;
+  ExpectTracked(o, 400, 0.9);
 }
 
 // Long-throw fits on a mostly hidden arm: the built-in robot's dev stream 2 (bench seed). Fits
@@ -384,10 +380,7 @@ TEST(Tracker, TakesNoUnfittedViewOfAPendingJump) {
 // the model by more than the agreement's tolerance (it kept occluder depth up to 8 cm in front).
 TEST(Tracker, HoldsThroughFitsOnAMostlyHiddenArm) {
   const StreamOutcome o = StreamOf(Builtin(), sim::FrameKind::kLongThrow, 12.0, 11387873304532188844ull);
-  ASSERT_GT(o.scored, 250);
-  EXPECT_EQ(o.rereferences_before_jump, 0);
-  EXPECT_GE(o.recovery_s, 0.0) << "never recovered from the jump";
-  EXPECT_GE(o.within_10mm, 0.93 * o.scored) << o.within_10mm << " of " << o.scored;
+  ExpectTracked(o, 250, 0.93);
 }
 
 // The simulator says how much of the arm in view props hide, so that the bench can tell a slow

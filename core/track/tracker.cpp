@@ -113,7 +113,11 @@ struct Tracker::Impl {
   // the filter before it replaces it, filtered on its own.
   std::optional<PoseFilter> candidate;
   int candidate_frames = 0;
-  bool candidate_from_jump_view = false;  // found at the camera's view of a jump (coverage bar)
+  // The bar the candidate must pass on each frame: clearly better than the filter (on the jump
+  // view's coverage when it was found at the camera's view of a jump), or at least as good when
+  // it is the camera's view challenging the filter while a jump is pending (see Process).
+  enum class Bar { kClearlyBetter, kClearlyBetterJumpView, kAtLeastAsGood };
+  Bar candidate_bar = Bar::kClearlyBetter;
   // A fit has been fused since the filter was last (re)started: its pose is then one the frames
   // have confirmed, not only a re-reference's.
   bool fused = false;
@@ -125,10 +129,7 @@ struct Tracker::Impl {
   // when there is none): a depth behind another pose's model that the filter's model explains is
   // the robot seen through that pose, not an occluder aliased there.
   ModelView reference;
-  // When jump_guess was set, and whether the candidate is the camera's view challenging the
-  // filter while that jump is pending (ties go to it then: see Process).
-  double jump_time_s = 0.0;
-  bool candidate_at_jump = false;
+  double jump_time_s = 0.0;  // when jump_guess was set
   bool CameraJumped(const DepthFrame& f) const;
 
   int StrideFor(const DepthIntrinsics& c) const {
@@ -565,7 +566,9 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
     ++out.hypotheses;
     const Measurement c = I.Measure(frame, StateToPose(I.candidate->state()), s.icp_distances_m, s.icp_iterations, &out);
     LogMeasurement("candidate", c);
-    const bool holds = I.candidate_at_jump ? at_least_as_good(c) : clearly_better(c, I.candidate_from_jump_view);
+    const bool holds = I.candidate_bar == Impl::Bar::kAtLeastAsGood
+                           ? at_least_as_good(c)
+                           : clearly_better(c, I.candidate_bar == Impl::Bar::kClearlyBetterJumpView);
     if (holds && I.candidate->Update(PoseToState(c.T_world_base), c.covariance, frame.time_s, false) ==
                      FilterVerdict::kAccepted) {
       if (++I.candidate_frames >= s.confirm_frames) {
@@ -577,6 +580,15 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
       I.candidate.reset();
     }
   }
+  auto start_candidate = [&](const Measurement& x, Impl::Bar bar, std::string_view how) {
+    I.candidate = PoseFilter(s.filter);
+    I.candidate->Reset(PoseToState(x.T_world_base), x.covariance, frame.time_s);
+    I.candidate_frames = 1;
+    I.candidate_bar = bar;
+    spdlog::info("tracker: candidate {}, {:.3f} m from the filter's pose{}, agreeing {:.2f} against {:.2f}", how,
+                 (x.T_world_base.translation() - predicted.translation()).norm(), jumped ? " (the camera jumped)" : "",
+                 x.support, explained);
+  };
   if (jumped && tracking && I.previous_camera) {
     I.jump_guess = StateToPose(PoseToState(frame.T_world_camera * I.previous_camera->second.inverse() * predicted));
     I.jump_time_s = frame.time_s;
@@ -587,19 +599,14 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
   // agreed 0.78-1.00 at coverage 0.23-0.38 for 2.2 s, the camera's view 0.93 at 0.33). So while
   // a jump is pending the camera's view is measured on each frame, for jump_challenge_s, and
   // becomes a candidate when it explains the frame at least as well as the filter.
+  // The lost branch below starts from the same view with the same distances: it reuses this.
+  std::optional<Measurement> pending_view;
   if (tracking && I.jump_guess && !candidate_measured && frame.time_s - I.jump_time_s <= s.jump_challenge_s) {
     ++out.hypotheses;
-    const Measurement r = I.Measure(frame, *I.jump_guess, s.icp_distances_m, s.icp_iterations, &out);
-    LogMeasurement("the camera's view of a pending jump", r);
-    if (at_least_as_good(r)) {
-      I.candidate = PoseFilter(s.filter);
-      I.candidate->Reset(PoseToState(r.T_world_base), r.covariance, frame.time_s);
-      I.candidate_frames = 1;
-      I.candidate_from_jump_view = I.candidate_at_jump = true;
-      spdlog::info("tracker: candidate from the camera's view of a pending jump, {:.3f} m from the filter's pose, "
-                   "agreeing {:.2f} against {:.2f}",
-                   (r.T_world_base.translation() - predicted.translation()).norm(), r.support, explained);
-    }
+    pending_view = I.Measure(frame, *I.jump_guess, s.icp_distances_m, s.icp_iterations, &out);
+    LogMeasurement("the camera's view of a pending jump", *pending_view);
+    if (at_least_as_good(*pending_view))
+      start_candidate(*pending_view, Impl::Bar::kAtLeastAsGood, "from the camera's view of a pending jump");
   }
   // Out of view where the filter says; after a camera jump, the world may have moved it.
   if (m.model_points < s.min_model_points && !jumped) return finish(TrackState::kNoRobot);
@@ -647,14 +654,7 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
       return restart(x);
     }
     if (!clearly_better(x, jump_view)) return std::nullopt;
-    I.candidate = PoseFilter(s.filter);
-    I.candidate->Reset(PoseToState(x.T_world_base), x.covariance, frame.time_s);
-    I.candidate_frames = 1;
-    I.candidate_from_jump_view = jump_view;
-    I.candidate_at_jump = false;
-    spdlog::info("tracker: candidate {}, {:.3f} m from the filter's pose{}, agreeing {:.2f} against {:.2f}", how,
-                 (x.T_world_base.translation() - predicted.translation()).norm(), jumped ? " (the camera jumped)" : "",
-                 x.support, explained);
+    start_candidate(x, jump_view ? Impl::Bar::kClearlyBetterJumpView : Impl::Bar::kClearlyBetter, how);
     if (I.candidate_frames >= s.confirm_frames) return adopt_candidate(x);
     return finish(TrackState::kLost);
   };
@@ -666,8 +666,9 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
     // Across a jump of the world under a steady head the camera's view is centimetres off, so
     // the tracking distances come first: the wide ones reach the clutter round a thin arm and
     // can pull the fit off a right guess.
-    ++out.hypotheses;
-    Measurement r = I.Measure(frame, *relative, s.icp_distances_m, s.icp_iterations, &out);
+    // (The view of a pending jump was measured, and counted, above.)
+    if (!pending_view) ++out.hypotheses;
+    Measurement r = pending_view ? *pending_view : I.Measure(frame, *relative, s.icp_distances_m, s.icp_iterations, &out);
     bool jump_view = I.jump_guess.has_value();  // the relaxed coverage bar holds for this fit only
     if (jump_view && Wraps(frame))
       jump_view_agreement = r.start_hidden ? 1.0 : std::max(r.start_agreement, r.fits ? r.agreement : 0.0);

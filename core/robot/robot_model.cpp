@@ -279,6 +279,17 @@ std::vector<JointInfo> RobotModel::ActuatedJoints() const {
   return out;
 }
 
+JointValues RobotModel::ClampedToLimits(const JointValues& given) const {
+  JointValues out = given;
+  for (auto& [name, value] : out) {
+    auto it = impl_->joint_index.find(name);
+    if (it == impl_->joint_index.end()) continue;
+    const JointInfo& info = impl_->joints[it->second];
+    if (info.has_limits) value = std::clamp(value, info.lower, info.upper);
+  }
+  return out;
+}
+
 Result<JointValues> RobotModel::CompleteJoints(const JointValues& given) const {
   for (const auto& [name, value] : given) {
     auto it = impl_->joint_index.find(name);

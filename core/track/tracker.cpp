@@ -176,12 +176,7 @@ bool Tracker::Impl::CameraJumped(const DepthFrame& f) const {
 }
 
 Status Tracker::Impl::PoseModel(const JointValues& given) {
-  JointValues clamped = given;
-  for (const JointInfo& j : joints) {
-    auto it = clamped.find(j.name);
-    if (it != clamped.end() && j.has_limits) it->second = std::clamp(it->second, j.lower, j.upper);
-  }
-  return caster.Pose(*robot, clamped);
+  return caster.Pose(*robot, robot->ClampedToLimits(given));
 }
 
 PointCloud Tracker::Impl::DepthPoints(const DepthFrame& f, const ModelView& view, const Iso3& T_world_base,

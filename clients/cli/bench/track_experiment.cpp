@@ -16,8 +16,7 @@
 #include "arref/scene/metrics.h"
 #include "arref/scene/sampling.h"
 #include "arref/sim/track_simulator.h"
-#include "arref/track/clock_sync.h"
-#include "arref/track/joint_history.h"
+#include "arref/sim/track_stream.h"
 #include "arref/track/tracker.h"
 #include "bench.h"
 #ifdef ARREF_WITH_PCL
@@ -28,8 +27,6 @@ namespace arref::bench {
 namespace {
 
 constexpr double kDeg = std::numbers::pi / 180.0;
-constexpr int kSettledFrames = 10;
-constexpr double kArmShows = 0.5;
 
 std::uint64_t MixSeed(std::uint64_t x) {  // SplitMix64
   x += 0x9E3779B97F4A7C15ull;
@@ -59,24 +56,25 @@ struct StreamStats {
   int jumps = 0, reacquired = 0, false_rereferences = 0;
   double model_points = 0;  // mean per frame
   double recovery_s = -1;  // < 0: no jump, or never recovered
-  // From the first frame after the jump that shows the arm (kArmShows of its pixels unhidden)
+  // From the first frame after the jump that shows the arm (sim::JumpRecovery::kArmShows of its pixels unhidden)
   // to the recovery: the part of it a tracker can answer for. < 0: not recovered.
   double recovery_after_shown_s = -1;
   bool had_jump = false;
   std::vector<double> add_mm, frame_ms, baseline_ms, baseline_add_mm;
+  int baseline_failures = 0;  // baseline frames whose posing or ICP failed (not in its columns)
   std::vector<double> add_first_min_mm, add_last_min_mm;
   double rss_start_mb = 0, rss_end_mb = 0, duration_s = 0;
 };
 
 #ifdef ARREF_WITH_PCL
-// One frame the one-shot way: the model posed and sampled afresh, PCL ICP (the paper's best
-// parameters) of it against the frame's depth points round the last estimate.
-double BaselineFrame(const RobotModel& robot, const sim::SimFrame& f, const JointValues& joints,
-                     const Iso3& T_world_base_initial, const std::vector<Vec3f>& add_points, double* add_mm) {
+// One frame the one-shot way: the model posed (at the joints the tracker used, clamped into
+// their limits as it clamps them) and sampled afresh, PCL ICP (the paper's best parameters) of it
+// against the frame's depth points round the last estimate. Its time (ms) and ADD (mm).
+Result<std::pair<double, double>> BaselineFrame(const RobotModel& robot, const sim::SimFrame& f, const JointValues& joints,
+                                                const Iso3& T_world_base_initial, const std::vector<Vec3f>& add_points) {
   LapTimer lap;
-  auto mesh = robot.PosedMesh(joints);
-  if (!mesh.ok()) return std::nan("");
-  const PointCloud model = SampleSurface(*mesh, 10000, 1);
+  ARREF_ASSIGN_OR_RETURN(const TriangleMesh mesh, robot.PosedMesh(robot.ClampedToLimits(joints)));
+  const PointCloud model = SampleSurface(mesh, 10000, 1);
   const Aabb box = BoundsOf(model.points).Grown(0.3f);
   const Iso3 T_base_camera = T_world_base_initial.inverse() * f.frame.T_world_camera;
   PointCloud scene;
@@ -89,10 +87,9 @@ double BaselineFrame(const RobotModel& robot, const sim::SimFrame& f, const Join
       if (!box.Contains((T_base_camera * p).cast<float>())) continue;
       scene.points.push_back((f.frame.T_world_camera * p).cast<float>());
     }
-  auto fit = RegisterPclIcp(model, scene, T_world_base_initial, IcpParams{}, false);
+  ARREF_ASSIGN_OR_RETURN(const RegistrationOutput fit, RegisterPclIcp(model, scene, T_world_base_initial, IcpParams{}, false));
   const double ms = lap.Lap();
-  *add_mm = fit.ok() ? 1000 * ComparePoses(fit->T_world_base, f.T_world_base_true, add_points).add_m : std::nan("");
-  return ms;
+  return std::make_pair(ms, 1000 * ComparePoses(fit.T_world_base, f.T_world_base_true, add_points).add_m);
 }
 #endif
 
@@ -106,70 +103,50 @@ struct StreamSpec {
 
 Result<StreamStats> RunStream(const StreamSpec& spec) {
   ARREF_ASSIGN_OR_RETURN(sim::TrackSimulator simulator, sim::TrackSimulator::Create(spec.robot, spec.options, spec.seed));
-  ARREF_ASSIGN_OR_RETURN(Tracker tracker, Tracker::Create(spec.robot));
-  std::vector<std::string> names;
-  for (const JointInfo& j : spec.robot->ActuatedJoints()) names.push_back(j.name);
-  JointHistory history(names);
-  ClockOffsetEstimator clock;
-  ARREF_ASSIGN_OR_RETURN(const TriangleMesh home, spec.robot->PosedMesh({}));
-  const std::vector<Vec3f> add_points = SampleSurface(home, 2000, 1).points;
-  tracker.Seed(simulator.T_world_base_guess());
   StreamStats s;
   s.duration_s = simulator.frame_count() / simulator.options().fps;
   const double jump = simulator.jump_time_s();
   s.had_jump = jump < s.duration_s;
   const int baseline_every = spec.baseline_frames > 0 ? std::max(1, simulator.frame_count() / spec.baseline_frames) : 0;
-  double last = -1.0;
-  bool recovered = false;
-  double run_start = -1;
-  int run = 0;
-  double shown_at = -1;  // the first frame after the jump that shows the arm
+  sim::JumpRecovery recovery(jump);
   Iso3 last_estimate = simulator.T_world_base_initial();
+  const int frame_count = simulator.frame_count();
   s.rss_start_mb = RssMb();
-  for (int i = 0; i < simulator.frame_count(); ++i) {
-    ARREF_ASSIGN_OR_RETURN(const sim::SimFrame f, simulator.Next());
-    // Joint states and round trips as the server sees them: kept on the sender's clock, looked
-    // up at the frame's time moved onto it by the estimated offset.
-    if (i % 10 == 0) ARREF_RETURN_IF_ERROR(clock.Add(simulator.RoundTrip(f.true_time_s)));
-    for (const auto& js : simulator.JointSamples(last, f.true_time_s))
-      ARREF_RETURN_IF_ERROR(history.Add(js.sender_time_s, js.joints));
-    last = f.true_time_s;
-    ARREF_ASSIGN_OR_RETURN(const JointLookup joints, history.At(f.frame.time_s - clock.offset_s()));
-    ARREF_ASSIGN_OR_RETURN(const TrackResult r, tracker.Process(f.frame, joints.joints));
+  auto on_step = [&](const sim::TrackStreamStep& step) {
+    const sim::SimFrame& f = step.frame;
+    const TrackResult& r = step.result;
     ++s.frames;
     s.frame_ms.push_back(r.total_ms);
     if (r.state == TrackState::kLost) ++s.lost;
     if (r.state == TrackState::kNoRobot) ++s.no_robot;
-    if (i > 0 && (r.state == TrackState::kJump || r.state == TrackState::kReacquired)) {
+    if (step.index > 0 && (r.state == TrackState::kJump || r.state == TrackState::kReacquired)) {
       ++(r.state == TrackState::kJump ? s.jumps : s.reacquired);
       if (!f.after_jump) ++s.false_rereferences;
     }
-    s.model_points += static_cast<double>(r.model_points) / simulator.frame_count();
-    const double add_mm = 1000 * ComparePoses(r.T_world_base, f.T_world_base_true, add_points).add_m;
-    spdlog::debug("track frame {} t {:.3f}: {} ADD {:.1f} mm, measured {:.1f} mm, agreement {:.2f} (filter {:.2f}), {} model / {} depth points, {:.1f} ms",
-                  i, f.true_time_s, TrackStateName(r.state), add_mm,
-                  r.T_world_base_measured ? 1000 * ComparePoses(*r.T_world_base_measured, f.T_world_base_true, add_points).add_m : -1.0,
-                  r.agreement, r.agreement_filtered, r.model_points, r.depth_points, r.total_ms);
-    // Recovered: the first frame after the jump from which kSettledFrames in a row are within 10 mm.
-    if (f.after_jump && shown_at < 0 && f.robot_visible_fraction >= kArmShows) shown_at = f.true_time_s;
-    if (f.after_jump && !recovered) {
-      if (add_mm >= 10) run_start = -1, run = 0;
-      else if (run++ == 0) run_start = f.true_time_s;
-      if (run >= kSettledFrames) {
-        recovered = true, s.recovery_s = run_start - jump;
-        // Recovered before the arm showed: the pose was held or found on what was seen.
-        s.recovery_after_shown_s = shown_at < 0 ? 0.0 : std::max(0.0, run_start - shown_at);
-      }
-    }
+    s.model_points += static_cast<double>(r.model_points) / frame_count;
+    const double add_mm = 1000 * step.add_m;
+    if (spdlog::should_log(spdlog::level::debug))
+      spdlog::debug("track frame {} t {:.3f}: {} ADD {:.1f} mm, measured {:.1f} mm, agreement {:.2f} (filter {:.2f}), {} model / {} depth points, {:.1f} ms",
+                    step.index, f.true_time_s, TrackStateName(r.state), add_mm,
+                    r.T_world_base_measured ? 1000 * ComparePoses(*r.T_world_base_measured, f.T_world_base_true, step.add_points).add_m : -1.0,
+                    r.agreement, r.agreement_filtered, r.model_points, r.depth_points, r.total_ms);
+    recovery.Add(step);
 #ifdef ARREF_WITH_PCL
-    if (baseline_every > 0 && i % baseline_every == baseline_every / 2 && spec.options.kind == sim::FrameKind::kLongThrow) {
-      double baseline_add = 0;
-      s.baseline_ms.push_back(BaselineFrame(*spec.robot, f, joints.joints, last_estimate, add_points, &baseline_add));
-      s.baseline_add_mm.push_back(baseline_add);
+    if (baseline_every > 0 && step.index % baseline_every == baseline_every / 2 &&
+        spec.options.kind == sim::FrameKind::kLongThrow) {
+      auto baseline = BaselineFrame(*spec.robot, f, step.joints.joints, last_estimate, step.add_points);
+      if (baseline.ok()) {
+        s.baseline_ms.push_back(baseline->first);
+        s.baseline_add_mm.push_back(baseline->second);
+      } else {
+        ++s.baseline_failures;
+        spdlog::warn("bench: track baseline on frame {} of {} (simulator seed {}): {}", step.index, spec.robot->name(),
+                     spec.seed, baseline.status().ToString());
+      }
     }
 #endif
     last_estimate = r.T_world_base;
-    if (f.true_time_s < 1.0) continue;
+    if (f.true_time_s < 1.0) return Status::Ok();
     s.add_mm.push_back(add_mm);
     ++s.scored;
     if (add_mm < 10) ++s.within;
@@ -179,7 +156,11 @@ Result<StreamStats> RunStream(const StreamSpec& spec) {
     }
     if (spec.minutes && f.true_time_s < 61.0) s.add_first_min_mm.push_back(add_mm);
     if (spec.minutes && f.true_time_s >= s.duration_s - 60.0) s.add_last_min_mm.push_back(add_mm);
-  }
+    return Status::Ok();
+  };
+  ARREF_RETURN_IF_ERROR(sim::RunTrackStream(spec.robot, simulator, sim::TrackStreamOptions{}, on_step));
+  s.recovery_s = recovery.recovery_s();
+  s.recovery_after_shown_s = recovery.after_shown_s();
   s.rss_end_mb = RssMb();
   return s;
 }
@@ -228,6 +209,7 @@ Status TrackExperiment(const Config& config, Tables* tables) {
         ARREF_ASSIGN_OR_RETURN(const StreamStats s, RunStream(spec));
         all.frames += s.frames, all.scored += s.scored, all.within += s.within, all.lost += s.lost;
         all.scored_steady += s.scored_steady, all.within_steady += s.within_steady;
+        all.baseline_failures += s.baseline_failures;
         for (auto [dst, src] : {std::pair{&all.add_mm, &s.add_mm}, {&all.frame_ms, &s.frame_ms},
                                 {&all.baseline_ms, &s.baseline_ms}, {&all.baseline_add_mm, &s.baseline_add_mm}})
           dst->insert(dst->end(), src->begin(), src->end());
@@ -249,7 +231,8 @@ Status TrackExperiment(const Config& config, Tables* tables) {
                         unrecovered ? "not recovered" : Num(worst_after_shown, "{:.2f}"), Num(median_ms),
                         Num(Quantile(all.frame_ms, 0.95)), Num(baseline_ms, "{:.0f}"),
                         all.baseline_ms.empty() ? "-" : fmt::format("{:.0f}x", baseline_ms / median_ms),
-                        Num(Quantile(all.baseline_add_mm, 0.5)));
+                        Num(Quantile(all.baseline_add_mm, 0.5)) +
+                            (all.baseline_failures ? fmt::format(" ({} failed)", all.baseline_failures) : ""));
       md.flush();
     }
   }

@@ -69,6 +69,12 @@ struct Measurement {
   std::size_t agree = 0, through = 0, occluded = 0, ambiguous = 0, resolved = 0;  // pixel classes at the fit
 };
 
+// ICP's correspondence distances from a pose that may be far off (a seed, the camera's view).
+const std::vector<double>& WideDistances() {
+  static const std::vector<double> wide = {0.15, 0.06, 0.025};
+  return wide;
+}
+
 // A sensor whose depth wraps (AHAT, modulo about 1 m): depth behind the model and an occluder
 // in front of it can read alike, so some rules hold only for frames that do not wrap.
 bool Wraps(const DepthFrame& f) { return f.wrap_m > 0; }
@@ -101,7 +107,6 @@ struct Tracker::Impl {
   std::shared_ptr<const RobotModel> robot;
   TrackerSettings settings;
   ModelCaster caster;
-  std::vector<JointInfo> joints;
   PoseFilter filter;
   std::optional<Iso3> seed;
   // The last frame that fit: where its camera was and where the filter put the base.
@@ -164,6 +169,23 @@ struct Tracker::Impl {
   }
   Mat4 Covariance(const PointCloud& source, const TargetCloud& target, const Iso3& T_base_world) const;
   std::optional<Iso3> GridSearch(const DepthFrame& f, const std::vector<Iso3>& guesses, TrackResult* out) const;
+
+  // Process, in the order it runs them on a frame.
+  struct Step;
+  void ExplainByFilter(Step& st);
+  std::optional<TrackResult> ConfirmCandidate(Step& st);
+  void ChallengeWithJumpView(Step& st);
+  TrackResult TakeFit(Step& st);
+  TrackResult Reacquire(Step& st);
+  // ... and what those share.
+  bool InGate(const Step& st, const Measurement& x) const;
+  bool ClearlyBetter(const Step& st, const Measurement& x, bool jump_view = false) const;
+  bool AtLeastAsGood(const Step& st, const Measurement& x) const;
+  void StartCandidate(const Step& st, const Measurement& x, Bar bar, std::string_view how);
+  std::optional<TrackResult> Found(Step& st, const Measurement& x, std::string_view how, bool jump_view = false);
+  TrackResult AdoptCandidate(Step& st, const Measurement& c);
+  TrackResult Restart(Step& st, const Measurement& m);
+  TrackResult Finish(Step& st, TrackState state);
 };
 
 // Faster than a head moves: the headset's world moved under the camera (re-localisation).
@@ -404,8 +426,8 @@ Result<Tracker> Tracker::Create(std::shared_ptr<const RobotModel> robot, Tracker
   if (!robot) return Status::InvalidArgument("tracker: no robot");
   if (settings.icp_distances_m.empty()) return Status::InvalidArgument("tracker: icp_distances_m is empty");
   ARREF_ASSIGN_OR_RETURN(ModelCaster caster, ModelCaster::Create(*robot));
-  auto impl = std::make_unique<Impl>(Impl{robot, settings, std::move(caster), robot->ActuatedJoints(),
-                                          PoseFilter(settings.filter), {}, {}, {}, {}, 0, {}, 0, {}});
+  auto impl = std::make_unique<Impl>(Impl{robot, settings, std::move(caster), PoseFilter(settings.filter), {}, {}, {}, {},
+                                          0, {}, 0, {}});
   return Tracker(std::move(impl));
 }
 
@@ -422,63 +444,76 @@ void Tracker::Seed(const Iso3& T_world_base) {
 bool Tracker::seeded() const { return impl_->seed.has_value() || impl_->filter.initialised(); }
 const TrackerSettings& Tracker::settings() const { return impl_->settings; }
 
-Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues& joints) {
-  ARREF_RETURN_IF_ERROR(CheckDepthFrame(frame));
-  if (!seeded()) return Status::FailedPrecondition("tracker: no first guess of the robot's pose (Seed)");
-  Impl& I = *impl_;
+// One frame's decision state: the filter's explanation of the frame, which the other poses
+// measured in it (a candidate, the camera's view of a jump, a search's) are held against.
+struct Tracker::Impl::Step {
+  Step(const DepthFrame& f, bool camera_jumped) : frame(f), jumped(camera_jumped) {}
+  const DepthFrame& frame;
   const SteadyClock::time_point start = SteadyClock::now();
-  LapTimer lap;
   TrackResult out;
-  const bool jumped = I.CameraJumped(frame);
-  ARREF_RETURN_IF_ERROR(I.PoseModel(joints).WithContext("tracker: posing the robot"));
-  out.model_ms += lap.Lap();
-  const TrackerSettings& s = I.settings;
-  const std::vector<double> wide = {0.15, 0.06, 0.025};
-  auto finish = [&](TrackState state) {
-    out.state = state;
-    if (I.filter.initialised()) {
-      out.T_world_base = StateToPose(I.filter.state());
-      out.covariance = I.filter.CovarianceAt(frame.time_s);
-    } else if (I.seed) {
-      out.T_world_base = *I.seed;
-    }
-    if (state == TrackState::kTracking || state == TrackState::kReacquired || state == TrackState::kJump) {
-      I.last_T_world_base = out.T_world_base;
-      I.last_T_world_camera = frame.T_world_camera;
-      I.lost_frames = 0;
-    }
-    if (state == TrackState::kReacquired || state == TrackState::kJump) I.candidate.reset(), I.jump_guess.reset();
-    I.reference = ModelView();
-    I.previous_camera = {frame.time_s, frame.T_world_camera};
-    out.total_ms = MsSince(start);
-    return out;
-  };
-  auto restart = [&](const Measurement& m) {
-    I.filter.Reset(PoseToState(m.T_world_base), m.covariance, frame.time_s);
-    I.fused = false;
-    out.T_world_base_measured = m.T_world_base;
-    out.agreement = m.support;
-    return finish(TrackState::kReacquired);
-  };
+  bool jumped;                // the camera jumped into this frame
+  bool tracking = false;      // the filter has a state
+  bool jump_pending = false;  // this frame's camera jump, or one not yet re-referenced
+  Iso3 predicted = Iso3::Identity();  // the filter's pose, or the seed
+  Measurement m;              // the fit from `predicted`
+  bool hidden = false;        // the filter's pose hidden, no jump pending: it holds
+  // How well the filter explains this frame: at its pose, or by this frame's fit if it takes it;
+  // and how little the frame contradicts it (its agreement), and its readable coverage.
+  double explained = 0.0, explained_agreement = 0.0, explained_readable = 0.0;
+  // The agreement of the camera's view at a pending jump, once measured in this frame (1 when
+  // hidden, as for the filter).
+  std::optional<double> jump_view_agreement;
+  bool candidate_measured = false;
+  std::optional<Measurement> pending_view;  // the camera's view of a pending jump, when measured
+};
 
-  const bool tracking = I.filter.initialised();
-  const Iso3 predicted = tracking ? StateToPose(I.filter.state()) : *I.seed;
-  ++out.hypotheses;
+TrackResult Tracker::Impl::Finish(Step& st, TrackState state) {
+  TrackResult& out = st.out;
+  out.state = state;
+  if (filter.initialised()) {
+    out.T_world_base = StateToPose(filter.state());
+    out.covariance = filter.CovarianceAt(st.frame.time_s);
+  } else if (seed) {
+    out.T_world_base = *seed;
+  }
+  if (state == TrackState::kTracking || state == TrackState::kReacquired || state == TrackState::kJump) {
+    last_T_world_base = out.T_world_base;
+    last_T_world_camera = st.frame.T_world_camera;
+    lost_frames = 0;
+  }
+  if (state == TrackState::kReacquired || state == TrackState::kJump) candidate.reset(), jump_guess.reset();
+  reference = ModelView();
+  previous_camera = {st.frame.time_s, st.frame.T_world_camera};
+  out.total_ms = MsSince(st.start);
+  return out;
+}
+
+TrackResult Tracker::Impl::Restart(Step& st, const Measurement& m) {
+  filter.Reset(PoseToState(m.T_world_base), m.covariance, st.frame.time_s);
+  fused = false;
+  st.out.T_world_base_measured = m.T_world_base;
+  st.out.agreement = m.support;
+  return Finish(st, TrackState::kReacquired);
+}
+
+// Measures the filter's pose (or the seed) in the frame and how well the filter explains it.
+void Tracker::Impl::ExplainByFilter(Step& st) {
+  const DepthFrame& frame = st.frame;
+  const TrackerSettings& s = settings;
+  st.tracking = filter.initialised();
+  st.predicted = st.tracking ? StateToPose(filter.state()) : *seed;
+  ++st.out.hypotheses;
   // A world jump is pending from a camera jump (this frame's, or one not yet re-referenced): the
   // filter's pose is then known to be stale.
-  const bool jump_pending = jumped || I.jump_guess.has_value();
+  st.jump_pending = st.jumped || jump_guess.has_value();
   ModelView filter_view;
-  const Measurement m = I.Measure(frame, predicted, tracking ? s.icp_distances_m : wide, s.icp_iterations, &out,
-                                  tracking && Wraps(frame) && !jump_pending ? &filter_view : nullptr);
-  out.model_points = m.model_points, out.depth_points = m.depth_points, out.agreement = m.support;
+  st.m = Measure(frame, st.predicted, st.tracking ? s.icp_distances_m : WideDistances(), s.icp_iterations, &st.out,
+                 st.tracking && Wraps(frame) && !st.jump_pending ? &filter_view : nullptr);
+  const Measurement& m = st.m;
+  st.out.model_points = m.model_points, st.out.depth_points = m.depth_points, st.out.agreement = m.support;
   LogMeasurement("fit", m);
-  // How well the filter explains this frame: at its pose, or by this frame's fit if it takes it.
-  auto in_gate = [&](const Measurement& x) {
-    return x.fits && I.filter.Mahalanobis2(PoseToState(x.T_world_base), x.covariance, frame.time_s) <= s.filter.gate_chi2;
-  };
-  double explained = m.start_support;
-  // ... and how little the frame contradicts it (its agreement), and its readable coverage.
-  double explained_agreement = m.start_agreement, explained_readable = m.start_readable;
+  st.explained = m.start_support;
+  st.explained_agreement = m.start_agreement, st.explained_readable = m.start_readable;
   // The filter's pose hidden (every visible model pixel occluded, or ambiguous in a wrapped
   // frame) with no camera jump pending: nothing in the frame speaks against it, so it explains
   // the frame as well as any pose can, and holds. Its support (0) would hand the frame to any
@@ -486,205 +521,239 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
   // hidden, a search pose 0.3 m off agreeing with 3,200 pixels of the occluder), and the
   // SIA10D's held-out stream 0 in long-throw frames, 8.5-8.8 s (the arm wholly behind a prop
   // for 0.3 s, a search pose 1.14 m off taken, never left: 231 of 330 frames within 10 mm).
-  const bool hidden = tracking && !jump_pending && m.start_hidden;
-  if (hidden) explained = 1.0, explained_agreement = 1.0;
-  if (tracking && in_gate(m)) {
-    explained = std::max(explained, m.support);
-    explained_agreement = std::max(explained_agreement, m.agreement);
-    explained_readable = std::max(explained_readable, m.readable);
-  } else if (tracking && explained < 1.0) {
+  st.hidden = st.tracking && !st.jump_pending && m.start_hidden;
+  if (st.hidden) st.explained = 1.0, st.explained_agreement = 1.0;
+  auto take = [&](const Measurement& x) {
+    st.explained = std::max(st.explained, x.support);
+    st.explained_agreement = std::max(st.explained_agreement, x.agreement);
+    st.explained_readable = std::max(st.explained_readable, x.readable);
+  };
+  if (st.tracking && InGate(st, m)) {
+    take(m);
+  } else if (st.tracking && st.explained < 1.0) {
     // The fit left the filter's basin (or failed): the filter's pose refined locally, so that the
     // frame's own camera-pose error (which shifts a thin arm's silhouette by pixels) counts
     // against neither side.
-    ++out.hypotheses;
-    const Measurement local = I.Measure(frame, predicted, {s.icp_distances_m.back()}, s.icp_iterations, &out);
-    if (in_gate(local)) {
-      explained = std::max(explained, local.support);
-      explained_agreement = std::max(explained_agreement, local.agreement);
-      explained_readable = std::max(explained_readable, local.readable);
-    }
+    ++st.out.hypotheses;
+    const Measurement local = Measure(frame, st.predicted, {s.icp_distances_m.back()}, s.icp_iterations, &st.out);
+    if (InGate(st, local)) take(local);
     LogMeasurement("local", local);
   }
-  out.agreement_filtered = explained;
+  st.out.agreement_filtered = st.explained;
   // In a wrapped frame every other pose is measured against the filter's model from here on
   // (not when a jump is pending: the filter's model then stands where the robot was).
-  I.reference = std::move(filter_view);
+  reference = std::move(filter_view);
+}
 
-  // The agreement of the camera's view at a pending jump, once measured in this frame (1 when
-  // hidden, as for the filter above).
-  std::optional<double> jump_view_agreement;
-  auto clearly_better = [&](const Measurement& x, bool jump_view = false) {
-    if (!I.Reacquires(x, jump_view)) return false;
-    if (Wraps(frame)) {
-      // Coverage counts occluded pixels against a pose, so a pose found by search wins wherever
-      // more of the scene looks like the robot than of the robot is in view: the MH5's dev
-      // stream 3 (the arm 50-97 % behind a prop; search poses 0.2-0.3 m off laid on the prop
-      // covered 0.6-0.8 against the true pose's 0.02-0.47, which nothing saw through). So in a
-      // wrapped frame a pose found by search must also be contradicted (seen through, with its
-      // ambiguous pixels read against the filter's model) no more than the pose the tracker
-      // already has: the filter's; strictly less once a fit has been fused since the filter's
-      // last (re)start (a pose only a re-reference gave, such as a camera's view 10 cm off in
-      // the built-in robot's dev stream 1, keeps no such tie); and at a pending jump strictly
-      // less than the camera's view (head tracking's guess, 1 when hidden).
-      const bool beats_filter =
-          I.fused ? x.agreement > explained_agreement : x.agreement >= explained_agreement;
-      if (!jump_view && !jump_pending && !beats_filter) return false;
-      if (!jump_view && jump_view_agreement && !(x.agreement > *jump_view_agreement)) return false;
-      // The camera's view at a jump is compared on its readable coverage, as its bar (Reacquires).
-      if (jump_view) return x.readable >= explained_readable + s.rereference_margin;
-    }
-    return x.support >= explained + s.rereference_margin;
-  };
-  // At a pending jump the camera's view needs only to explain the frame as well as the filter's
-  // explanation: head tracking moved the camera faster than a head moves, which is itself the
-  // evidence that the world moved with it. But it must fit: ICP from the camera's view of an arm
-  // all but hidden slides along the props, and the SIA10D's dev stream 5 in AHAT frames (0.31 m
-  // jump, 6-16 % of the arm readable) took such a slid pose 0.4 m off when ties were enough.
-  auto at_least_as_good = [&](const Measurement& x) {
-    if (!x.fits || !I.Reacquires(x, true)) return false;
-    if (Wraps(frame)) return x.readable >= explained_readable && x.agreement >= explained_agreement;
-    return x.support >= explained;
-  };
-  auto adopt_candidate = [&](const Measurement& c) {
-    I.filter = std::move(*I.candidate);
-    I.fused = false;
-    I.candidate.reset();
-    I.seed.reset();
-    out.T_world_base_measured = c.T_world_base;
-    out.agreement = c.support;
-    return finish(TrackState::kReacquired);
-  };
-  // A pose found on an earlier frame stays a candidate while it explains each frame clearly
-  // better than the filter, and replaces the filter after confirm_frames such frames.
-  const bool candidate_measured = I.candidate.has_value();
-  if (I.candidate) {
-    ++out.hypotheses;
-    const Measurement c = I.Measure(frame, StateToPose(I.candidate->state()), s.icp_distances_m, s.icp_iterations, &out);
-    LogMeasurement("candidate", c);
-    const bool holds = I.candidate_bar == Impl::Bar::kAtLeastAsGood
-                           ? at_least_as_good(c)
-                           : clearly_better(c, I.candidate_bar == Impl::Bar::kClearlyBetterJumpView);
-    if (holds && I.candidate->Update(PoseToState(c.T_world_base), c.covariance, frame.time_s, false) ==
-                     FilterVerdict::kAccepted) {
-      if (++I.candidate_frames >= s.confirm_frames) {
-        spdlog::info("tracker: re-referenced after {} frames agreeing {:.2f} against the filter's {:.2f}",
-                     I.candidate_frames, c.support, explained);
-        return adopt_candidate(c);
-      }
-    } else {
-      I.candidate.reset();
-    }
+bool Tracker::Impl::InGate(const Step& st, const Measurement& x) const {
+  return x.fits && filter.Mahalanobis2(PoseToState(x.T_world_base), x.covariance, st.frame.time_s) <= settings.filter.gate_chi2;
+}
+
+bool Tracker::Impl::ClearlyBetter(const Step& st, const Measurement& x, bool jump_view) const {
+  if (!Reacquires(x, jump_view)) return false;
+  if (Wraps(st.frame)) {
+    // Coverage counts occluded pixels against a pose, so a pose found by search wins wherever
+    // more of the scene looks like the robot than of the robot is in view: the MH5's dev
+    // stream 3 (the arm 50-97 % behind a prop; search poses 0.2-0.3 m off laid on the prop
+    // covered 0.6-0.8 against the true pose's 0.02-0.47, which nothing saw through). So in a
+    // wrapped frame a pose found by search must also be contradicted (seen through, with its
+    // ambiguous pixels read against the filter's model) no more than the pose the tracker
+    // already has: the filter's; strictly less once a fit has been fused since the filter's
+    // last (re)start (a pose only a re-reference gave, such as a camera's view 10 cm off in
+    // the built-in robot's dev stream 1, keeps no such tie); and at a pending jump strictly
+    // less than the camera's view (head tracking's guess, 1 when hidden).
+    const bool beats_filter = fused ? x.agreement > st.explained_agreement : x.agreement >= st.explained_agreement;
+    if (!jump_view && !st.jump_pending && !beats_filter) return false;
+    if (!jump_view && st.jump_view_agreement && !(x.agreement > *st.jump_view_agreement)) return false;
+    // The camera's view at a jump is compared on its readable coverage, as its bar (Reacquires).
+    if (jump_view) return x.readable >= st.explained_readable + settings.rereference_margin;
   }
-  auto start_candidate = [&](const Measurement& x, Impl::Bar bar, std::string_view how) {
-    I.candidate = PoseFilter(s.filter);
-    I.candidate->Reset(PoseToState(x.T_world_base), x.covariance, frame.time_s);
-    I.candidate_frames = 1;
-    I.candidate_bar = bar;
-    spdlog::info("tracker: candidate {}, {:.3f} m from the filter's pose{}, agreeing {:.2f} against {:.2f}", how,
-                 (x.T_world_base.translation() - predicted.translation()).norm(), jumped ? " (the camera jumped)" : "",
-                 x.support, explained);
-  };
-  if (jumped && tracking && I.previous_camera) {
-    I.jump_guess = StateToPose(PoseToState(frame.T_world_camera * I.previous_camera->second.inverse() * predicted));
-    I.jump_time_s = frame.time_s;
-  }
-  // The filter's stale pose can go on explaining the frames after a jump as well as the camera's
-  // view does where little of the arm shows, and it then holds while it fits: the MH5's
-  // long-throw stream of the held-back look at --rng-seed 5 (a 1.04 m jump; the stale pose
-  // agreed 0.78-1.00 at coverage 0.23-0.38 for 2.2 s, the camera's view 0.93 at 0.33). So while
-  // a jump is pending the camera's view is measured on each frame, for jump_challenge_s, and
-  // becomes a candidate when it explains the frame at least as well as the filter.
-  // The lost branch below starts from the same view with the same distances: it reuses this.
-  std::optional<Measurement> pending_view;
-  if (tracking && I.jump_guess && !candidate_measured && frame.time_s - I.jump_time_s <= s.jump_challenge_s) {
-    ++out.hypotheses;
-    pending_view = I.Measure(frame, *I.jump_guess, s.icp_distances_m, s.icp_iterations, &out);
-    LogMeasurement("the camera's view of a pending jump", *pending_view);
-    if (at_least_as_good(*pending_view))
-      start_candidate(*pending_view, Impl::Bar::kAtLeastAsGood, "from the camera's view of a pending jump");
-  }
-  // Out of view where the filter says; after a camera jump, the world may have moved it.
-  if (m.model_points < s.min_model_points && !jumped) return finish(TrackState::kNoRobot);
-  // No fit, but the filter's pose still explains the frame (the depth near it too sparse or
-  // mostly an occluder for ICP): the pose holds, and nothing is searched.
-  if (!m.fits && tracking && !jumped && (m.start_support >= s.min_reacquire_agreement || hidden))
-    return finish(TrackState::kTracking);
-  if (m.fits) {
-    out.T_world_base_measured = m.T_world_base;
-    if (!tracking) {
-      if (!I.Reacquires(m)) return finish(TrackState::kLost);
-      I.seed.reset();
-      return restart(m);
+  return x.support >= st.explained + settings.rereference_margin;
+}
+
+// At a pending jump the camera's view needs only to explain the frame as well as the filter's
+// explanation: head tracking moved the camera faster than a head moves, which is itself the
+// evidence that the world moved with it. But it must fit: ICP from the camera's view of an arm
+// all but hidden slides along the props, and the SIA10D's dev stream 5 in AHAT frames (0.31 m
+// jump, 6-16 % of the arm readable) took such a slid pose 0.4 m off when ties were enough.
+bool Tracker::Impl::AtLeastAsGood(const Step& st, const Measurement& x) const {
+  if (!x.fits || !Reacquires(x, true)) return false;
+  if (Wraps(st.frame)) return x.readable >= st.explained_readable && x.agreement >= st.explained_agreement;
+  return x.support >= st.explained;
+}
+
+TrackResult Tracker::Impl::AdoptCandidate(Step& st, const Measurement& c) {
+  filter = std::move(*candidate);
+  fused = false;
+  candidate.reset();
+  seed.reset();
+  st.out.T_world_base_measured = c.T_world_base;
+  st.out.agreement = c.support;
+  return Finish(st, TrackState::kReacquired);
+}
+
+void Tracker::Impl::StartCandidate(const Step& st, const Measurement& x, Bar bar, std::string_view how) {
+  candidate = PoseFilter(settings.filter);
+  candidate->Reset(PoseToState(x.T_world_base), x.covariance, st.frame.time_s);
+  candidate_frames = 1;
+  candidate_bar = bar;
+  spdlog::info("tracker: candidate {}, {:.3f} m from the filter's pose{}, agreeing {:.2f} against {:.2f}", how,
+               (x.T_world_base.translation() - st.predicted.translation()).norm(),
+               st.jumped ? " (the camera jumped)" : "", x.support, st.explained);
+}
+
+// A pose found on an earlier frame stays a candidate while it explains each frame clearly
+// better than the filter, and replaces the filter after confirm_frames such frames.
+std::optional<TrackResult> Tracker::Impl::ConfirmCandidate(Step& st) {
+  st.candidate_measured = candidate.has_value();
+  if (!candidate) return std::nullopt;
+  const TrackerSettings& s = settings;
+  ++st.out.hypotheses;
+  const Measurement c = Measure(st.frame, StateToPose(candidate->state()), s.icp_distances_m, s.icp_iterations, &st.out);
+  LogMeasurement("candidate", c);
+  const bool holds = candidate_bar == Bar::kAtLeastAsGood ? AtLeastAsGood(st, c)
+                                                          : ClearlyBetter(st, c, candidate_bar == Bar::kClearlyBetterJumpView);
+  if (holds && candidate->Update(PoseToState(c.T_world_base), c.covariance, st.frame.time_s, false) ==
+                   FilterVerdict::kAccepted) {
+    if (++candidate_frames >= s.confirm_frames) {
+      spdlog::info("tracker: re-referenced after {} frames agreeing {:.2f} against the filter's {:.2f}", candidate_frames,
+                   c.support, st.explained);
+      return AdoptCandidate(st, c);
     }
-    // Two long-throw fits within the gate are not fused; the pose holds. One that explains the
-    // frame worse than the pose it started from was pulled off by depth that is not the robot
-    // (clutter inside the crop: at the long-throw walk's far end such fits ended 40-220 mm away
-    // from a start 4-9 mm off, and walked the filter 10-32 mm off); a fit from a right start
-    // explains the frame at least as well as its start, up to a few silhouette pixels
-    // (max_fit_support_drop). And one on a few unhidden pixels errs the same way frame after
-    // frame (min_fuse_coverage). Outside the gate nothing changes: such a fit is no evidence of
-    // a jump either (not clearly better: worse than its start, or covering too little).
-    const bool untrusted =
-        m.support < m.start_support - s.max_fit_support_drop || m.coverage < s.min_fuse_coverage;
-    if (!Wraps(frame) && untrusted && in_gate(m)) return finish(TrackState::kTracking);
-    // Rejected measurements become a world jump only while they explain the frames clearly better.
-    const FilterVerdict v = I.filter.Update(PoseToState(m.T_world_base), m.covariance, frame.time_s, clearly_better(m));
-    I.fused = v == FilterVerdict::kAccepted || (I.fused && v == FilterVerdict::kRejected);
-    return finish(v == FilterVerdict::kRejected ? TrackState::kRejected
-                  : v == FilterVerdict::kJump   ? TrackState::kJump
-                                                : TrackState::kTracking);
+  } else {
+    candidate.reset();
   }
-  ++I.lost_frames;
-  if (I.candidate) return finish(TrackState::kLost);  // being confirmed: no search meanwhile
-  // Lost. If the world moved under a steady head, the robot is where the camera last saw it;
-  // when the camera has not jumped, that guess is off by the head's motion, so it waits for a
-  // second lost frame like the grid search.
-  if (!jumped && I.lost_frames <= s.lost_frames_before_search) return finish(TrackState::kLost);
-  // A pose found now restarts at once only when there is no filter to replace (the first
-  // frames after a seed); otherwise it becomes a candidate if it explains the frame clearly better.
-  auto found = [&](const Measurement& x, const char* how, bool jump_view = false) -> std::optional<TrackResult> {
-    if (!tracking) {
-      spdlog::info("tracker: acquired {}", how);
-      I.seed.reset();
-      return restart(x);
-    }
-    if (!clearly_better(x, jump_view)) return std::nullopt;
-    start_candidate(x, jump_view ? Impl::Bar::kClearlyBetterJumpView : Impl::Bar::kClearlyBetter, how);
-    if (I.candidate_frames >= s.confirm_frames) return adopt_candidate(x);
-    return finish(TrackState::kLost);
-  };
-  std::vector<Iso3> guesses = {predicted};
-  std::optional<Iso3> relative = I.jump_guess;
-  if (!relative && I.last_T_world_base && I.last_T_world_camera)
-    relative = StateToPose(PoseToState(frame.T_world_camera * I.last_T_world_camera->inverse() * *I.last_T_world_base));
+  return std::nullopt;
+}
+
+// A camera jump sets the jump guess. The filter's stale pose can go on explaining the frames
+// after a jump as well as the camera's view does where little of the arm shows, and it then
+// holds while it fits: the MH5's long-throw stream of the held-back look at --rng-seed 5 (a
+// 1.04 m jump; the stale pose agreed 0.78-1.00 at coverage 0.23-0.38 for 2.2 s, the camera's view
+// 0.93 at 0.33). So while a jump is pending the camera's view is measured on each frame, for
+// jump_challenge_s, and becomes a candidate when it explains the frame at least as well as the
+// filter. Reacquire starts from the same view with the same distances: it reuses this.
+void Tracker::Impl::ChallengeWithJumpView(Step& st) {
+  const TrackerSettings& s = settings;
+  if (st.jumped && st.tracking && previous_camera) {
+    jump_guess = StateToPose(PoseToState(st.frame.T_world_camera * previous_camera->second.inverse() * st.predicted));
+    jump_time_s = st.frame.time_s;
+  }
+  if (!st.tracking || !jump_guess || st.candidate_measured || st.frame.time_s - jump_time_s > s.jump_challenge_s) return;
+  ++st.out.hypotheses;
+  st.pending_view = Measure(st.frame, *jump_guess, s.icp_distances_m, s.icp_iterations, &st.out);
+  LogMeasurement("the camera's view of a pending jump", *st.pending_view);
+  if (AtLeastAsGood(st, *st.pending_view))
+    StartCandidate(st, *st.pending_view, Bar::kAtLeastAsGood, "from the camera's view of a pending jump");
+}
+
+// The filter's pose fit: the first fit restarts the filter, later ones go through its gate.
+TrackResult Tracker::Impl::TakeFit(Step& st) {
+  const Measurement& m = st.m;
+  st.out.T_world_base_measured = m.T_world_base;
+  if (!st.tracking) {
+    if (!Reacquires(m)) return Finish(st, TrackState::kLost);
+    seed.reset();
+    return Restart(st, m);
+  }
+  // Two long-throw fits within the gate are not fused; the pose holds. One that explains the
+  // frame worse than the pose it started from was pulled off by depth that is not the robot
+  // (clutter inside the crop: at the long-throw walk's far end such fits ended 40-220 mm away
+  // from a start 4-9 mm off, and walked the filter 10-32 mm off); a fit from a right start
+  // explains the frame at least as well as its start, up to a few silhouette pixels
+  // (max_fit_support_drop). And one on a few unhidden pixels errs the same way frame after
+  // frame (min_fuse_coverage). Outside the gate nothing changes: such a fit is no evidence of
+  // a jump either (not clearly better: worse than its start, or covering too little).
+  const bool untrusted =
+      m.support < m.start_support - settings.max_fit_support_drop || m.coverage < settings.min_fuse_coverage;
+  if (!Wraps(st.frame) && untrusted && InGate(st, m)) return Finish(st, TrackState::kTracking);
+  // Rejected measurements become a world jump only while they explain the frames clearly better.
+  const FilterVerdict v = filter.Update(PoseToState(m.T_world_base), m.covariance, st.frame.time_s, ClearlyBetter(st, m));
+  fused = v == FilterVerdict::kAccepted || (fused && v == FilterVerdict::kRejected);
+  return Finish(st, v == FilterVerdict::kRejected ? TrackState::kRejected
+                    : v == FilterVerdict::kJump   ? TrackState::kJump
+                                                  : TrackState::kTracking);
+}
+
+// A pose found while lost restarts at once only when there is no filter to replace (the first
+// frames after a seed); otherwise it becomes a candidate if it explains the frame clearly better.
+std::optional<TrackResult> Tracker::Impl::Found(Step& st, const Measurement& x, std::string_view how, bool jump_view) {
+  if (!st.tracking) {
+    spdlog::info("tracker: acquired {}", how);
+    seed.reset();
+    return Restart(st, x);
+  }
+  if (!ClearlyBetter(st, x, jump_view)) return std::nullopt;
+  StartCandidate(st, x, jump_view ? Bar::kClearlyBetterJumpView : Bar::kClearlyBetter, how);
+  if (candidate_frames >= settings.confirm_frames) return AdoptCandidate(st, x);
+  return Finish(st, TrackState::kLost);
+}
+
+// Lost. If the world moved under a steady head, the robot is where the camera last saw it;
+// when the camera has not jumped, that guess is off by the head's motion, so it waits for a
+// second lost frame like the grid search.
+TrackResult Tracker::Impl::Reacquire(Step& st) {
+  const TrackerSettings& s = settings;
+  const DepthFrame& frame = st.frame;
+  ++lost_frames;
+  if (candidate) return Finish(st, TrackState::kLost);  // being confirmed: no search meanwhile
+  if (!st.jumped && lost_frames <= s.lost_frames_before_search) return Finish(st, TrackState::kLost);
+  std::vector<Iso3> guesses = {st.predicted};
+  std::optional<Iso3> relative = jump_guess;
+  if (!relative && last_T_world_base && last_T_world_camera)
+    relative = StateToPose(PoseToState(frame.T_world_camera * last_T_world_camera->inverse() * *last_T_world_base));
   if (relative) {
     // Across a jump of the world under a steady head the camera's view is centimetres off, so
     // the tracking distances come first: the wide ones reach the clutter round a thin arm and
     // can pull the fit off a right guess.
-    // (The view of a pending jump was measured, and counted, above.)
-    if (!pending_view) ++out.hypotheses;
-    Measurement r = pending_view ? *pending_view : I.Measure(frame, *relative, s.icp_distances_m, s.icp_iterations, &out);
-    bool jump_view = I.jump_guess.has_value();  // the relaxed coverage bar holds for this fit only
+    // (The view of a pending jump was measured, and counted, in ChallengeWithJumpView.)
+    if (!st.pending_view) ++st.out.hypotheses;
+    Measurement r = st.pending_view ? *st.pending_view
+                                    : Measure(frame, *relative, s.icp_distances_m, s.icp_iterations, &st.out);
+    bool jump_view = jump_guess.has_value();  // the relaxed coverage bar holds for this fit only
     if (jump_view && Wraps(frame))
-      jump_view_agreement = r.start_hidden ? 1.0 : std::max(r.start_agreement, r.fits ? r.agreement : 0.0);
-    if (!I.Reacquires(r, jump_view)) {
-      ++out.hypotheses;
-      r = I.Measure(frame, *relative, wide, s.icp_iterations, &out);
+      st.jump_view_agreement = r.start_hidden ? 1.0 : std::max(r.start_agreement, r.fits ? r.agreement : 0.0);
+    if (!Reacquires(r, jump_view)) {
+      ++st.out.hypotheses;
+      r = Measure(frame, *relative, WideDistances(), s.icp_iterations, &st.out);
       jump_view = false;
     }
-    LogMeasurement(I.jump_guess ? "the camera's view at the jump" : "the camera's view", r);
-    if (I.Reacquires(r, jump_view))
-      if (auto result = found(r, "from the camera's view", jump_view)) return *result;
+    LogMeasurement(jump_guess ? "the camera's view at the jump" : "the camera's view", r);
+    if (Reacquires(r, jump_view))
+      if (auto result = Found(st, r, "from the camera's view", jump_view)) return *result;
     guesses.push_back(*relative);
   }
-  if (const auto pose = I.GridSearch(frame, guesses, &out)) {
-    const Measurement refined = I.Measure(frame, *pose, s.icp_distances_m, s.icp_iterations, &out);
+  if (const auto pose = GridSearch(frame, guesses, &st.out)) {
+    const Measurement refined = Measure(frame, *pose, s.icp_distances_m, s.icp_iterations, &st.out);
     LogMeasurement("search", refined);
-    if (I.Reacquires(refined))
-      if (auto result = found(refined, fmt::format("by a search of {} poses", out.hypotheses).c_str())) return *result;
+    if (Reacquires(refined))
+      if (auto result = Found(st, refined, fmt::format("by a search of {} poses", st.out.hypotheses))) return *result;
   }
-  I.lost_frames = 0;  // the next search waits again
-  return finish(TrackState::kLost);
+  lost_frames = 0;  // the next search waits again
+  return Finish(st, TrackState::kLost);
+}
+
+Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues& joints) {
+  ARREF_RETURN_IF_ERROR(CheckDepthFrame(frame));
+  if (!seeded()) return Status::FailedPrecondition("tracker: no first guess of the robot's pose (Seed)");
+  Impl& I = *impl_;
+  Impl::Step st(frame, I.CameraJumped(frame));
+  LapTimer lap;
+  ARREF_RETURN_IF_ERROR(I.PoseModel(joints).WithContext("tracker: posing the robot"));
+  st.out.model_ms += lap.Lap();
+  const TrackerSettings& s = I.settings;
+  I.ExplainByFilter(st);
+  if (auto adopted = I.ConfirmCandidate(st)) return *adopted;
+  I.ChallengeWithJumpView(st);
+  const Measurement& m = st.m;
+  // Out of view where the filter says; after a camera jump, the world may have moved it.
+  if (m.model_points < s.min_model_points && !st.jumped) return I.Finish(st, TrackState::kNoRobot);
+  // No fit, but the filter's pose still explains the frame (the depth near it too sparse or
+  // mostly an occluder for ICP): the pose holds, and nothing is searched.
+  if (!m.fits && st.tracking && !st.jumped && (m.start_support >= s.min_reacquire_agreement || st.hidden))
+    return I.Finish(st, TrackState::kTracking);
+  if (m.fits) return I.TakeFit(st);
+  return I.Reacquire(st);
 }
 
 }  // namespace arref

@@ -179,6 +179,15 @@ TEST(RobotModel, MimicOfAMimicJointIsRejected) {
   auto joints = good->CompleteJoints({{"j1", 0.25}});
   ASSERT_TRUE(joints.ok()) << joints.status().message();
   EXPECT_DOUBLE_EQ(joints->at("j2"), 0.5);
+  // A state overshooting a limit (interpolated near it) is rejected as given and posed once clamped;
+  // names the robot does not have are left for CompleteJoints to reject.
+  EXPECT_FALSE(good->CompleteJoints({{"j1", 1.02}}).ok());
+  const JointValues clamped = good->ClampedToLimits({{"j1", 1.02}, {"nope", 7.0}});
+  EXPECT_DOUBLE_EQ(clamped.at("j1"), 1.0);
+  EXPECT_DOUBLE_EQ(clamped.at("nope"), 7.0);
+  EXPECT_DOUBLE_EQ(good->ClampedToLimits({{"j1", -3.0}}).at("j1"), -1.0);
+  EXPECT_DOUBLE_EQ(good->ClampedToLimits({{"j1", 0.5}}).at("j1"), 0.5);
+  EXPECT_TRUE(good->PosedMesh(good->ClampedToLimits({{"j1", 1.02}})).ok());
 }
 
 // A headset mesh saved and loaded again is the same mesh; PLY polygons are split into fans and a

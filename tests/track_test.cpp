@@ -371,6 +371,35 @@ TEST(Tracker, HoldsThroughFitsOnAMostlyHiddenArm) {
 // hide most of it for a while; in the same stream's cell without walls, table and boxes only the
 // floor is left, and the median frame shows 91 % of the robot's pixels (the floor hides the rest:
 // depth behind it, 5-15 cm, in the image's lowest rows).
+// Recovery is counted from the jump to the first of ten frames in a row within 10 mm (a run
+// broken by one frame over starts again), and from when the arm first shows to that run.
+TEST(JumpRecovery, CountsTheFirstSettledRunAfterTheJump) {
+  const JointLookup joints;
+  const TrackResult result;
+  const std::vector<Vec3f> points;
+  sim::SimFrame f;
+  sim::JumpRecovery recovery(1.0);
+  auto add = [&](double t, double add_mm, double visible) {
+    f.true_time_s = t, f.after_jump = t >= 1.0, f.robot_visible_fraction = visible;
+    recovery.Add(sim::TrackStreamStep{0, f, joints, result, add_mm / 1000, points});
+  };
+  int k = 0;
+  auto at = [&] { return 0.9 + 0.1 * k++; };  // 10 frames a second, from before the jump
+  add(at(), 2.0, 1.0);                      // before the jump: not counted
+  for (int i = 0; i < 3; ++i) add(at(), 500.0, 0.2);  // 1.0-1.2 s: off, the arm hidden
+  add(at(), 500.0, 0.9);                    // 1.3 s: the arm shows
+  for (int i = 0; i < 9; ++i) add(at(), 4.0, 0.9);    // 1.4-2.2 s: nine frames within
+  add(at(), 12.0, 0.9);                     // 2.3 s: the run breaks
+  EXPECT_FALSE(recovery.recovered());
+  EXPECT_LT(recovery.recovery_s(), 0.0);
+  for (int i = 0; i < 10; ++i) add(at(), 4.0, 0.9);   // 2.4-3.3 s: ten in a row
+  ASSERT_TRUE(recovery.recovered());
+  EXPECT_NEAR(recovery.recovery_s(), 1.4, 1e-9);
+  EXPECT_NEAR(recovery.after_shown_s(), 1.1, 1e-9);
+  add(at(), 500.0, 0.9);  // later frames change nothing
+  EXPECT_NEAR(recovery.recovery_s(), 1.4, 1e-9);
+}
+
 TEST(TrackSimulator, SaysHowMuchOfTheArmPropsHide) {
   auto robot = Builtin();
   auto VisibleFractions = [&](const sim::TrackSimOptions& options) {

@@ -9,7 +9,8 @@
 #include <cmath>
 #include <cstdint>
 #include <cstring>
-#include <fstream>
+#include <istream>
+#include <streambuf>
 #include <limits>
 #include <optional>
 #include <sstream>
@@ -310,11 +311,21 @@ Status CheckBody(std::istream& in, const PlyHeader& header) {
   return Status::Ok();
 }
 
+// An istream over bytes held elsewhere, read in place (an istringstream would copy a mesh of
+// tens of MB).
+class BytesBuffer : public std::streambuf {
+ public:
+  explicit BytesBuffer(std::string_view bytes) {
+    char* p = const_cast<char*>(bytes.data());  // only read: the get area wants char*
+    setg(p, p, p + bytes.size());
+  }
+};
+
 }  // namespace
 
-Status CheckPlyFile(const std::string& path) {
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return Status::IoError("cannot open " + path);
+Status CheckPly(std::string_view bytes) {
+  BytesBuffer buffer(bytes);
+  std::istream in(&buffer);
   HeaderReader header_reader(in);
   ARREF_ASSIGN_OR_RETURN(const PlyHeader header, header_reader.Read());
   return CheckBody(in, header);

@@ -1,7 +1,7 @@
 // A PLY file checked before assimp reads it (core/robot internal).
 #pragma once
 
-#include <string>
+#include <string_view>
 
 #include "arref/base/status.h"
 
@@ -12,6 +12,7 @@ namespace arref {
 // checked ("ply", one format line, elements each with properties of known types, end_header)
 // and so is the body: every element's rows as the header declares them, each value a number
 // its type can hold, each list no longer than the file. An IO_ERROR names the first fault.
-Status CheckPlyFile(const std::string& path);
+// `bytes` is the whole file, read once: assimp then reads the same bytes from memory.
+Status CheckPly(std::string_view bytes);
 
 }  // namespace arref

@@ -170,7 +170,7 @@ struct StreamOutcome {
 
 // as_bench: the stream as `arref bench` runs it (its first guess for this seed, a round trip
 // every tenth frame), so that a bench stream's failure reproduces here; otherwise a round trip
-// every frame and a fixed first guess 6 cm and 4 deg off.
+// every frame and a fixed first guess 6.4 cm across, 2 cm in height and 4 deg off.
 StreamOutcome RunStream(std::shared_ptr<const RobotModel> robot, sim::TrackSimOptions options, std::uint64_t seed,
                         bool as_bench = false) {
   StreamOutcome out;

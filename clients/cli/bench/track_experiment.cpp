@@ -56,8 +56,8 @@ struct StreamStats {
   int jumps = 0, reacquired = 0, false_rereferences = 0;
   double model_points = 0;  // mean per frame
   double recovery_s = -1;  // < 0: no jump, or never recovered
-  // From the first frame after the jump that shows the arm (sim::JumpRecovery::kArmShows of its pixels unhidden)
-  // to the recovery: the part of it a tracker can answer for. < 0: not recovered.
+  // From the first frame after the jump that shows the arm to the recovery (sim::JumpRecovery):
+  // the part of it a tracker can answer for. < 0: not recovered.
   double recovery_after_shown_s = -1;
   bool had_jump = false;
   std::vector<double> add_mm, frame_ms, baseline_ms, baseline_add_mm;

@@ -54,8 +54,9 @@ class RobotModel {
   // Fills unnamed actuated joints with 0 (clamped into limits), derives mimic joints, and
   // rejects unknown names, non-finite values and values outside limits.
   Result<JointValues> CompleteJoints(const JointValues& given) const;
-  // The named actuated joints moved into their limits (others as given): a state interpolated
-  // or extrapolated between samples at a limit can overshoot it by a little.
+  // The given joints that have limits moved into them (names it does not know left for
+  // CompleteJoints to reject): a state interpolated or extrapolated between samples at a limit
+  // can overshoot it by a little.
   JointValues ClampedToLimits(const JointValues& given) const;
 
   // Forward kinematics: T_root_link for every link.

@@ -35,8 +35,9 @@ struct TrackStreamStep {
   const std::vector<Vec3f>& add_points;  // the robot's samples that ADD is taken over (2,000, at home)
 };
 
-// Runs every frame left in `simulator` through a new tracker, calling on_step after each; an
-// error from the simulator, the clock, the history, the tracker or on_step ends the stream.
+// Runs a fresh simulator's frames, from its first, through a new tracker, calling on_step after
+// each; an error from the simulator, the clock, the history, the tracker or on_step ends the
+// stream and is returned.
 Status RunTrackStream(const std::shared_ptr<const RobotModel>& robot, TrackSimulator& simulator,
                       const TrackStreamOptions& options, const std::function<Status(const TrackStreamStep&)>& on_step);
 

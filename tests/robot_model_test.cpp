@@ -255,6 +255,20 @@ TEST(MeshFile, MalformedPlyHeaderIsAnErrorNotAHang) {
   ASSERT_OK_AND_ASSIGN(const TriangleMesh fine,
                        load(header + "property list uchar int vertex_indices\nend_header\n" + body));
   EXPECT_EQ(fine.triangles.size(), 1u);
+
+  // Assimp reserved gigabytes for an element named with twenty digits before its letters (the
+  // fuzzer's, 2026-12-03): names start with a letter or '_'.
+  const std::string vertices = "ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+                               "property float z\n";
+  const auto digits = load(vertices + "element " + std::string(20, '8') + "face 1\n"
+                           "property list uchar int vertex_indices\nend_header\n" + body);
+  ASSERT_FALSE(digits.ok());
+  EXPECT_NE(digits.status().message().find("an element's name must start with a letter or '_'"), std::string::npos)
+      << digits.status().message();
+  const auto property = load(vertices + "element face 1\nproperty list uchar int 8indices\nend_header\n" + body);
+  ASSERT_FALSE(property.ok());
+  EXPECT_NE(property.status().message().find("a property's name must start with a letter or '_'"), std::string::npos)
+      << property.status().message();
 }
 
 // Assimp 5.2's PLY reader allocated until the process died on this 223-byte file (a vertex

@@ -5,6 +5,7 @@
 #include <algorithm>
 #include <array>
 #include <bit>
+#include <cctype>
 #include <charconv>
 #include <cmath>
 #include <cstdint>
@@ -114,9 +115,17 @@ std::optional<std::vector<std::string>> Words(const std::string& line) {
   return words;
 }
 
+// An element's or property's name starts with a letter or '_'. Assimp 5.2 read the row count of
+// an element named with twenty digits before its letters ('element 8888...face 9') as a number
+// that overflowed, and reserved gigabytes for it (tests/fuzz/regressions/mesh).
+bool IsName(const std::string& word) {
+  return !word.empty() && (std::isalpha(static_cast<unsigned char>(word.front())) || word.front() == '_');
+}
+
 Status HeaderReader::Element(int n, const std::vector<std::string>& words, PlyHeader* header) const {
   PlyElement e;
   if (words.size() != 3) return Bad(n, "expected 'element NAME COUNT'");
+  if (!IsName(words[1])) return Bad(n, "an element's name must start with a letter or '_'");
   e.name = words[1];
   const char* end = words[2].data() + words[2].size();
   const auto [ptr, ec] = std::from_chars(words[2].data(), end, e.rows);
@@ -135,6 +144,7 @@ Status HeaderReader::Property(int n, const std::vector<std::string>& words, PlyH
     return Bad(n, "expected 'property TYPE NAME' or 'property list COUNT_TYPE TYPE NAME'");
   PlyElement& element = header->elements.back();
   PlyProperty p;
+  if (!IsName(words.back())) return Bad(n, "a property's name must start with a letter or '_'");
   p.name = words.back();
   for (const PlyProperty& other : element.properties)
     if (other.name == p.name) return Bad(n, "a second property '" + p.name + "' in element '" + element.name + "'");

@@ -6,13 +6,12 @@
 #include <boost/asio/ip/address.hpp>
 
 #include <filesystem>
-#include <fstream>
 #include <limits>
 #include <set>
-#include <sstream>
 #include <type_traits>
 
 #include "arref/base/builtin.h"
+#include "arref/base/files.h"
 
 namespace arref::server {
 namespace {
@@ -275,12 +274,10 @@ Result<ServerConfig> ParseServerConfig(const std::string& yaml_text, const std::
 }
 
 Result<ServerConfig> LoadServerConfig(const std::string& path) {
-  std::ifstream in(path);
-  if (!in) return Status::NotFound("config file " + path + " cannot be opened");
-  std::stringstream text;
-  text << in.rdbuf();
+  const std::optional<std::string> text = ReadWholeFile(path);
+  if (!text) return Status::NotFound("config file " + path + " cannot be opened");
   const std::string dir = fs::absolute(fs::path(path)).parent_path().string();
-  auto config = ParseServerConfig(text.str(), dir);
+  auto config = ParseServerConfig(*text, dir);
   if (!config.ok()) return config.status().WithContext(path);
   config->source = path;
   return config;

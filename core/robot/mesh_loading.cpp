@@ -9,10 +9,10 @@
 #include <cstdlib>
 #include <cctype>
 #include <filesystem>
-#include <fstream>
 #include <sstream>
 #include <string>
 
+#include "arref/base/files.h"
 #include "arref/robot/robot_model.h"
 #include "ply_check.h"
 
@@ -93,17 +93,6 @@ bool IsPly(const std::string& path) {
   return ext == ".ply";
 }
 
-Result<std::string> ReadBytes(const std::string& path) {
-  std::error_code ec;
-  const std::uintmax_t size = fs::file_size(path, ec);
-  if (ec) return Status::IoError("cannot read mesh " + path + ": " + ec.message());
-  std::ifstream in(path, std::ios::binary);
-  if (!in) return Status::IoError("cannot open mesh " + path);
-  std::string bytes(static_cast<std::size_t>(size), '\0');
-  if (!in.read(bytes.data(), static_cast<std::streamsize>(size))) return Status::IoError("cannot read mesh " + path);
-  return bytes;
-}
-
 }  // namespace
 
 Result<std::string> ResolveMeshUri(const std::string& uri, const std::string& urdf_dir,
@@ -118,10 +107,11 @@ Result<std::string> ResolveMeshUri(const std::string& uri, const std::string& ur
 Result<TriangleMesh> LoadMeshFile(const std::string& path) {
   if (!fs::is_regular_file(path)) return Status::NotFound("mesh file not found: " + path);
   const bool ply = IsPly(path);
-  std::string ply_bytes;  // a PLY file is read once, checked, then handed to assimp from memory
+  std::optional<std::string> ply_bytes;  // a PLY file is read once, checked, then handed to assimp from memory
   if (ply) {
-    ARREF_ASSIGN_OR_RETURN(ply_bytes, ReadBytes(path));
-    ARREF_RETURN_IF_ERROR(CheckPly(ply_bytes).WithContext("mesh " + path));
+    ply_bytes = ReadWholeFile(path);
+    if (!ply_bytes) return Status::IoError("cannot read mesh " + path);
+    ARREF_RETURN_IF_ERROR(CheckPly(*ply_bytes).WithContext("mesh " + path));
   }
   Assimp::Importer importer;
   // ROS meshes keep their authored axes: URDF link frames already say which way is up, so
@@ -133,7 +123,7 @@ Result<TriangleMesh> LoadMeshFile(const std::string& path) {
   // read without post-processing: faces are checked and split into triangles here.
   const unsigned steps =
       ply ? 0u : unsigned{aiProcess_Triangulate | aiProcess_JoinIdenticalVertices | aiProcess_SortByPType};
-  const aiScene* scene = ply ? importer.ReadFileFromMemory(ply_bytes.data(), ply_bytes.size(), steps, "ply")
+  const aiScene* scene = ply ? importer.ReadFileFromMemory(ply_bytes->data(), ply_bytes->size(), steps, "ply")
                             : importer.ReadFile(path, steps);
   if (scene == nullptr || scene->mRootNode == nullptr)
     return Status::IoError("cannot read mesh " + path + ": " + importer.GetErrorString());

@@ -1,6 +1,8 @@
 // URDF robot model: urdfdom for parsing, assimp (mesh_loading.cpp) for link meshes.
 #include "arref/robot/robot_model.h"
 
+#include "arref/base/files.h"
+
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 #include <tinyxml.h>
@@ -9,9 +11,7 @@
 #include <algorithm>
 #include <cmath>
 #include <filesystem>
-#include <fstream>
 #include <numbers>
-#include <sstream>
 
 namespace arref {
 namespace {
@@ -235,12 +235,10 @@ RobotModel& RobotModel::operator=(RobotModel&&) noexcept = default;
 RobotModel::~RobotModel() = default;
 
 Result<RobotModel> RobotModel::Load(const std::string& urdf_path, const RobotLoadOptions& options) {
-  std::ifstream in(urdf_path);
-  if (!in) return Status::NotFound("URDF not found or unreadable: " + urdf_path);
-  std::stringstream text;
-  text << in.rdbuf();
+  const std::optional<std::string> text = ReadWholeFile(urdf_path);
+  if (!text) return Status::NotFound("URDF not found or unreadable: " + urdf_path);
   const std::string dir = std::filesystem::absolute(urdf_path).parent_path().string();
-  auto model = FromString(text.str(), dir, options);
+  auto model = FromString(*text, dir, options);
   if (!model.ok()) return model.status().WithContext("loading robot " + urdf_path);
   return model;
 }

@@ -191,8 +191,7 @@ StreamOutcome RunStream(std::shared_ptr<const RobotModel> robot, sim::TrackSimOp
     if (step.index > 0 && !f.after_jump && (state == TrackState::kJump || state == TrackState::kReacquired))
       ++out.rereferences_before_jump;
     recovery.Add(step);
-    const bool settling = f.true_time_s < 1.0 || (f.after_jump && f.true_time_s < jump_time + 1.0);
-    if (settling) return Status::Ok();
+    if (sim::SettlingFrame(f, jump_time)) return Status::Ok();
     ++out.scored;
     if (step.add_m < 0.010) ++out.within_10mm;
     return Status::Ok();

@@ -39,6 +39,10 @@ Status RunTrackStream(const std::shared_ptr<const RobotModel>& robot, TrackSimul
   return Status::Ok();
 }
 
+bool SettlingFrame(const SimFrame& f, double jump_time_s) {
+  return f.true_time_s < 1.0 || (f.after_jump && f.true_time_s < jump_time_s + 1.0);
+}
+
 void JumpRecovery::Add(const TrackStreamStep& step) {
   const SimFrame& f = step.frame;
   if (!f.after_jump || recovered()) return;

@@ -150,7 +150,7 @@ Result<StreamStats> RunStream(const StreamSpec& spec) {
     s.add_mm.push_back(add_mm);
     ++s.scored;
     if (add_mm < 10) ++s.within;
-    if (!(f.after_jump && f.true_time_s < jump + 1.0)) {
+    if (!sim::SettlingFrame(f, jump)) {
       ++s.scored_steady;
       if (add_mm < 10) ++s.within_steady;
     }

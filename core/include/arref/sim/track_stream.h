@@ -41,6 +41,10 @@ struct TrackStreamStep {
 Status RunTrackStream(const std::shared_ptr<const RobotModel>& robot, TrackSimulator& simulator,
                       const TrackStreamOptions& options, const std::function<Status(const TrackStreamStep&)>& on_step);
 
+// A frame in the stream's first second or in the second after the jump: the bench's "steady"
+// share and the tracker's tests leave these out (the tracker may still be settling).
+bool SettlingFrame(const SimFrame& f, double jump_time_s);
+
 // Recovery after the world jump: from the jump to the first of kSettledFrames frames in a row
 // within 10 mm; and from the first frame after the jump that shows half of the arm's pixels in
 // view (a frame showing less cannot place it) to that recovery: the part a tracker answers for.

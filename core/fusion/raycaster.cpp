@@ -122,17 +122,23 @@ RangeImage RayCaster::Render(const PinholeCamera& camera, const Iso3& T_scene_ca
   tbb::parallel_for(0, camera.height, [&](int v) {
     RTCIntersectContext context;
     rtcInitIntersectContext(&context);
-    for (int u = 0; u < camera.width; ++u) {
-      if (traced && !(*traced)[static_cast<std::size_t>(v) * camera.width + u]) continue;
-      const Vec3 dir = R * camera.RayDirection(u, v);
-      RTCRayHit rh = EmbreeRay(origin, dir, max_range_m);
-      rtcIntersect1(impl_->scene, &context, &rh);
-      if (rh.hit.geomID == RTC_INVALID_GEOMETRY_ID) continue;
-      const std::size_t pixel = static_cast<std::size_t>(v) * camera.width + u;
-      range[pixel] = rh.ray.tfar;
-      if (incidence) {
-        const Vec3 n(rh.hit.Ng_x, rh.hit.Ng_y, rh.hit.Ng_z);
-        (*incidence)[pixel] = static_cast<float>(std::abs(n.normalized().dot(dir)));
+    RayPacket packet(max_range_m);
+    Vec3 dirs[RayPacket::kRays];
+    const std::size_t row = static_cast<std::size_t>(v) * camera.width;
+    for (int u0 = 0; u0 < camera.width; u0 += RayPacket::kRays) {
+      const int lanes = std::min(RayPacket::kRays, camera.width - u0);
+      packet.Clear();
+      for (int k = 0; k < lanes; ++k) {
+        if (traced && !(*traced)[row + u0 + k]) continue;
+        dirs[k] = R * camera.RayDirection(u0 + k, v);
+        packet.Set(k, origin, dirs[k]);
+      }
+      packet.Trace(impl_->scene, &context);
+      for (int k = 0; k < lanes; ++k) {
+        if (!packet.Hit(k)) continue;
+        const std::size_t pixel = row + u0 + k;
+        range[pixel] = packet.Distance(k);
+        if (incidence) (*incidence)[pixel] = static_cast<float>(std::abs(packet.Normal(k).normalized().dot(dirs[k])));
       }
     }
   });

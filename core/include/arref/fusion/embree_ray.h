@@ -1,29 +1,57 @@
-// One Embree ray-hit record, ready for rtcIntersect1: the one place that fills Embree's ray
-// layout, for the expected surfaces' ray caster (raycaster.cpp) and the tracker's model caster
+// Embree ray packets (rtcIntersect16): the one place that fills Embree's ray layout, for the
+// expected surfaces' ray caster (raycaster.cpp) and the tracker's model caster
 // (track/model_caster.cpp). Include only where Embree is linked.
 #pragma once
 
 #include <embree3/rtcore.h>
 
+#include <algorithm>
+#include <iterator>
+
 #include "arref/base/geometry.h"
 
 namespace arref {
 
-// A ray from `origin` along the unit `direction`, hitting nothing yet, out to max_range_m.
-inline RTCRayHit EmbreeRay(const Vec3& origin, const Vec3& direction, double max_range_m) {
-  RTCRayHit rh{};
-  rh.ray.org_x = static_cast<float>(origin.x());
-  rh.ray.org_y = static_cast<float>(origin.y());
-  rh.ray.org_z = static_cast<float>(origin.z());
-  rh.ray.dir_x = static_cast<float>(direction.x());
-  rh.ray.dir_y = static_cast<float>(direction.y());
-  rh.ray.dir_z = static_cast<float>(direction.z());
-  rh.ray.tnear = 0.0f;
-  rh.ray.tfar = static_cast<float>(max_range_m);
-  rh.ray.mask = static_cast<unsigned>(-1);  // Embree skips geometry whose mask bits miss the ray's
-  rh.hit.geomID = RTC_INVALID_GEOMETRY_ID;
-  rh.hit.instID[0] = RTC_INVALID_GEOMETRY_ID;
-  return rh;
-}
+// Up to 16 rays from one origin traced as one Embree packet: the rays of an image row are
+// coherent, so a packet walks the BVH once for all of them (docs/engine.md, "Ray packets").
+class RayPacket {
+ public:
+  static constexpr int kRays = 16;
+  explicit RayPacket(double max_range_m) : max_range_(static_cast<float>(max_range_m)) { Clear(); }
+
+  // Lane k traces from origin along the unit direction, from 0 to max_range_m, on the next Trace.
+  void Set(int k, const Vec3& origin, const Vec3& direction) {
+    valid_[k] = -1;
+    rh_.ray.org_x[k] = static_cast<float>(origin.x());
+    rh_.ray.org_y[k] = static_cast<float>(origin.y());
+    rh_.ray.org_z[k] = static_cast<float>(origin.z());
+    rh_.ray.dir_x[k] = static_cast<float>(direction.x());
+    rh_.ray.dir_y[k] = static_cast<float>(direction.y());
+    rh_.ray.dir_z[k] = static_cast<float>(direction.z());
+    rh_.ray.tnear[k] = 0.0f;
+    rh_.ray.tfar[k] = max_range_;
+    rh_.ray.mask[k] = static_cast<unsigned>(-1);
+    rh_.ray.flags[k] = 0;
+    rh_.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
+    rh_.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;
+  }
+  // Traces the lanes set since the last Clear (nothing when none was).
+  void Trace(RTCScene scene, RTCIntersectContext* context) {
+    if (std::any_of(std::begin(valid_), std::end(valid_), [](int v) { return v != 0; }))
+      rtcIntersect16(valid_, scene, context, &rh_);
+  }
+  void Clear() {
+    for (int& v : valid_) v = 0;
+  }
+  bool Hit(int k) const { return valid_[k] && rh_.hit.geomID[k] != RTC_INVALID_GEOMETRY_ID; }
+  float Distance(int k) const { return rh_.ray.tfar[k]; }
+  unsigned Instance(int k) const { return rh_.hit.instID[0][k]; }  // of a hit through an instance
+  Vec3 Normal(int k) const { return Vec3(rh_.hit.Ng_x[k], rh_.hit.Ng_y[k], rh_.hit.Ng_z[k]); }
+
+ private:
+  RTCRayHit16 rh_;  // 64-byte aligned by Embree's declaration
+  alignas(64) int valid_[kRays];
+  float max_range_;
+};
 
 }  // namespace arref

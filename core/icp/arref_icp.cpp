@@ -16,7 +16,6 @@
 #include <limits>
 #include <memory>
 #include <numbers>
-#include <numeric>
 #include <optional>
 #include <span>
 
@@ -128,20 +127,6 @@ Result<IcpStats> AlignOrCancel(const PointCloud& source, const TargetCloud& targ
   return st;
 }
 
-// The coarse levels: the first captures each hypothesis's basin (its 30 cm reach spans the
-// 30-degree gaps between yaws), the others settle it.
-const std::vector<double> kCoarseCapture = {0.3}, kCoarseSettle = {0.15, 0.08};
-
-Candidate CoarseCandidate(const PointCloud& coarse, const TargetCloud& target, const IcpStats& st, int iterations) {
-  return {st.T_target_source, ScoreAlignment(coarse, target, st.T_target_source, 0.03, 0.5).inlier_fraction,
-          iterations + st.iterations};
-}
-
-// Every hypothesis is aligned at the capture level and scored; only the settle_top best go on to
-// the settling levels, and the rest keep their captured pose and score. Only the best distinct
-// candidates are refined (refine_top), and a start that scores low once captured does not end
-// among them: the settling levels were two thirds of the search's time for the 36-48 starts
-// of 12 yaws on 3-4 support heights.
 Result<std::vector<Candidate>> CoarseSearch(const PointCloud& coarse, const TargetCloud& target,
                                             const std::vector<Iso3>& starts, const ArrefIcpParams& p,
                                             const CancelToken* cancel) {
@@ -151,19 +136,10 @@ Result<std::vector<Candidate>> CoarseSearch(const PointCloud& coarse, const Targ
   // ends the running ones within an iteration and skips the rest; what they leave is dropped.
   tbb::parallel_for(std::size_t{0}, starts.size(), [&](std::size_t i) {
     if (Cancelled(cancel)) return;
-    const Result<IcpStats> st = AlignCoarseToFine(coarse, target, starts[i], kCoarseCapture, s);
-    if (st.ok() && !st->cancelled) out[i] = CoarseCandidate(coarse, target, *st, 0);  // no weights: only a cancel stops it
-  });
-  if (Cancelled(cancel)) return CancelledIn("pose search");
-  std::vector<std::size_t> order(starts.size());
-  std::iota(order.begin(), order.end(), std::size_t{0});
-  std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return out[a].score > out[b].score; });
-  order.resize(std::min(order.size(), static_cast<std::size_t>(p.settle_top)));
-  tbb::parallel_for(std::size_t{0}, order.size(), [&](std::size_t k) {
-    if (Cancelled(cancel)) return;
-    Candidate& c = out[order[k]];
-    const Result<IcpStats> st = AlignCoarseToFine(coarse, target, c.T_world_base, kCoarseSettle, s);
-    if (st.ok() && !st->cancelled) c = CoarseCandidate(coarse, target, *st, c.iterations);
+    const Result<IcpStats> st = AlignCoarseToFine(coarse, target, starts[i], {0.3, 0.15, 0.08}, s);
+    if (!st.ok() || st->cancelled) return;  // no weights: only a cancel stops it
+    out[i] = {st->T_target_source, ScoreAlignment(coarse, target, st->T_target_source, 0.03, 0.5).inlier_fraction,
+              st->iterations};
   });
   if (Cancelled(cancel)) return CancelledIn("pose search");
   return out;
@@ -431,8 +407,8 @@ Result<RegistrationOutput> RegisterArrefIcp(const ArrefIcpInput& in) {
   if (!in.model_base.has_normals() || !in.scene_world.has_normals() ||
       (in.model_expected && !in.model_expected->has_normals()))
     return Status::FailedPrecondition("arref-icp needs normals on model and scene points");
-  if (p.yaw_hypotheses < 1 || p.height_offsets_m.empty() || p.refine_top < 1 || p.settle_top < 1 || p.position_steps < 0)
-    return Status::InvalidArgument("arref-icp: yaw hypotheses, heights, settle_top and refine_top must be >= 1");
+  if (p.yaw_hypotheses < 1 || p.height_offsets_m.empty() || p.refine_top < 1 || p.position_steps < 0)
+    return Status::InvalidArgument("arref-icp: yaw hypotheses, heights and refine_top must be >= 1");
   if (Cancelled(in.cancel)) return CancelledIn("model preparation");
   ARREF_ASSIGN_OR_RETURN(const auto model, FittedModel(in));
   const PointCloud& fine = *model[2];

@@ -234,6 +234,38 @@ TEST(RayCaster, AnInstanceTracesAsOneSceneOfBoth) {
   EXPECT_GT(table_hits, 1000u);
 }
 
+// Rays are traced in packets of 16 along a row (RayPacket): a row whose width is no multiple of
+// 16 and a mask that leaves lanes empty must still give every traced pixel the range and incidence
+// of its own ray, and leave the others empty. Here against a floor, where both are known exactly.
+TEST(RayCaster, EveryTracedPixelMeetsTheFloorWhereItsRayDoes) {
+  TriangleMesh floor;
+  floor.vertices = {Vec3f(-20, -20, 0), Vec3f(20, -20, 0), Vec3f(20, 20, 0), Vec3f(-20, 20, 0)};
+  floor.triangles = {{0, 1, 2}, {0, 2, 3}};
+  auto caster = RayCaster::Create(floor);
+  ASSERT_TRUE(caster.ok()) << caster.status().ToString();
+  const PinholeCamera camera = PinholeCamera::FromFov(37, 29, 60);
+  const Iso3 T_scene_camera = LookAt(Vec3(0.3, -0.2, 1.6), Vec3(2.0, 1.0, 0.0));
+  PixelMask traced(static_cast<std::size_t>(camera.width) * camera.height);
+  for (std::size_t i = 0; i < traced.size(); ++i) traced[i] = i % 3 != 1;
+  std::vector<float> incidence;
+  const RangeImage range = caster->Render(camera, T_scene_camera, 50.0, &incidence, &traced);
+  std::size_t hits = 0;
+  for (int v = 0; v < camera.height; ++v)
+    for (int u = 0; u < camera.width; ++u) {
+      const std::size_t i = static_cast<std::size_t>(v) * camera.width + u;
+      const Vec3 dir = T_scene_camera.linear() * camera.RayDirection(u, v);
+      if (!traced[i] || dir.z() >= 0) {
+        EXPECT_EQ(range[i], 0.0f) << "pixel " << u << ", " << v;
+        continue;
+      }
+      const double t = -T_scene_camera.translation().z() / dir.z();
+      EXPECT_NEAR(range[i], t, 1e-5 * t) << "pixel " << u << ", " << v;
+      EXPECT_NEAR(incidence[i], -dir.z(), 1e-5) << "pixel " << u << ", " << v;
+      ++hits;
+    }
+  EXPECT_GT(hits, traced.size() / 2);  // two thirds are traced, and the camera looks down
+}
+
 // A TSDF kept to the band round the robot's points, as the refit's (one pixel per voxel aside).
 TsdfOptions BandRoundRobot(const std::vector<Vec3f>* robot) {
   TsdfOptions o;

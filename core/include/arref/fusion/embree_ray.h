@@ -30,7 +30,7 @@ class RayPacket {
     rh_.ray.dir_z[k] = static_cast<float>(direction.z());
     rh_.ray.tnear[k] = 0.0f;
     rh_.ray.tfar[k] = max_range_;
-    rh_.ray.mask[k] = static_cast<unsigned>(-1);
+    rh_.ray.mask[k] = static_cast<unsigned>(-1);  // Embree skips geometry whose mask bits miss the ray's
     rh_.ray.flags[k] = 0;
     rh_.hit.geomID[k] = RTC_INVALID_GEOMETRY_ID;
     rh_.hit.instID[0][k] = RTC_INVALID_GEOMETRY_ID;

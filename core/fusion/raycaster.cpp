@@ -120,27 +120,18 @@ RangeImage RayCaster::Render(const PinholeCamera& camera, const Iso3& T_scene_ca
   const Eigen::Matrix3d R = T_scene_camera.linear();
   const Vec3 origin = T_scene_camera.translation();
   tbb::parallel_for(0, camera.height, [&](int v) {
-    RTCIntersectContext context;
-    rtcInitIntersectContext(&context);
-    RayPacket packet(max_range_m);
-    Vec3 dirs[RayPacket::kRays];
     const std::size_t row = static_cast<std::size_t>(v) * camera.width;
-    for (int u0 = 0; u0 < camera.width; u0 += RayPacket::kRays) {
-      const int lanes = std::min(RayPacket::kRays, camera.width - u0);
-      packet.Clear();
-      for (int k = 0; k < lanes; ++k) {
-        if (traced && !(*traced)[row + u0 + k]) continue;
-        dirs[k] = R * camera.RayDirection(u0 + k, v);
-        packet.Set(k, origin, dirs[k]);
-      }
-      packet.Trace(impl_->scene, &context);
-      for (int k = 0; k < lanes; ++k) {
-        if (!packet.Hit(k)) continue;
-        const std::size_t pixel = row + u0 + k;
-        range[pixel] = packet.Distance(k);
-        if (incidence) (*incidence)[pixel] = static_cast<float>(std::abs(packet.Normal(k).normalized().dot(dirs[k])));
-      }
-    }
+    TraceRow(
+        impl_->scene, origin, max_range_m, 0, camera.width,
+        [&](int u, Vec3* dir) {
+          if (traced && !(*traced)[row + u]) return false;
+          *dir = R * camera.RayDirection(u, v);
+          return true;
+        },
+        [&](int u, const Vec3& dir, float distance, const Vec3& normal, unsigned) {
+          range[row + u] = distance;
+          if (incidence) (*incidence)[row + u] = static_cast<float>(std::abs(normal.normalized().dot(dir)));
+        });
   });
   return range;
 }

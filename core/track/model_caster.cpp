@@ -159,34 +159,23 @@ ModelView ModelCaster::Render(const DepthIntrinsics& camera, const Iso3& T_base_
   const Vec3 origin = T_base_camera.translation();
   std::vector<Vec3f> hit_points(view.z_depth.size()), hit_normals(view.z_depth.size());
   tbb::parallel_for(gv0, gv1, [&](int gv) {
-    RTCIntersectContext context;
-    rtcInitIntersectContext(&context);
-    RayPacket packet(max_range_m);
-    Vec3 dirs[RayPacket::kRays];
-    double lengths[RayPacket::kRays];
-    for (int g0 = gu0; g0 < gu1; g0 += RayPacket::kRays) {
-      const int lanes = std::min(RayPacket::kRays, gu1 - g0);
-      packet.Clear();
-      for (int k = 0; k < lanes; ++k) {
-        const Vec3 ray_cam = camera.Ray((g0 + k) * stride, gv * stride);
-        lengths[k] = ray_cam.norm();
-        dirs[k] = R * (ray_cam / lengths[k]);
-        packet.Set(k, origin, dirs[k]);
-      }
-      packet.Trace(impl_->top, &context);
-      for (int k = 0; k < lanes; ++k) {
-        if (!packet.Hit(k) || packet.Instance(k) == RTC_INVALID_GEOMETRY_ID) continue;
-        const std::size_t cell = static_cast<std::size_t>(gv) * gw + g0 + k;
-        const float t = packet.Distance(k);
-        view.z_depth[cell] = static_cast<float>(t / lengths[k]);
-        // Embree gives an instance hit's normal in the link's own frame.
-        const Impl::Link& link = impl_->links[packet.Instance(k)];
-        Vec3 n = link.T_base_link.linear() * packet.Normal(k).normalized();
-        if (n.dot(dirs[k]) > 0) n = -n;  // facing the camera
-        hit_points[cell] = (origin + t * dirs[k]).cast<float>();
-        hit_normals[cell] = n.cast<float>();
-      }
-    }
+    TraceRow(
+        impl_->top, origin, max_range_m, gu0, gu1,
+        [&](int gu, Vec3* dir) {
+          const Vec3 ray_cam = camera.Ray(gu * stride, gv * stride);
+          *dir = R * (ray_cam / ray_cam.norm());
+          return true;
+        },
+        [&](int gu, const Vec3& dir, float distance, const Vec3& normal, unsigned instance) {
+          if (instance == RTC_INVALID_GEOMETRY_ID) return;
+          const std::size_t cell = static_cast<std::size_t>(gv) * gw + gu;
+          view.z_depth[cell] = static_cast<float>(distance / camera.Ray(gu * stride, gv * stride).norm());
+          // Embree gives an instance hit's normal in the link's own frame.
+          Vec3 n = impl_->links[instance].T_base_link.linear() * normal.normalized();
+          if (n.dot(dir) > 0) n = -n;  // facing the camera
+          hit_points[cell] = (origin + distance * dir).cast<float>();
+          hit_normals[cell] = n.cast<float>();
+        });
   });
   for (std::size_t i = 0; i < view.z_depth.size(); ++i) {
     if (view.z_depth[i] <= 0) continue;

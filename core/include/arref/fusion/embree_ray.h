@@ -1,6 +1,6 @@
-// Embree ray packets (rtcIntersect16): the one place that fills Embree's ray layout, for the
-// expected surfaces' ray caster (raycaster.cpp) and the tracker's model caster
-// (track/model_caster.cpp). Include only where Embree is linked.
+// Tracing an image row in Embree ray packets (rtcIntersect16): the one place that fills Embree's
+// ray layout, for the expected surfaces' ray caster (raycaster.cpp) and the tracker's model
+// caster (track/model_caster.cpp). Include only where Embree is linked.
 #pragma once
 
 #include <embree3/rtcore.h>
@@ -12,8 +12,7 @@
 
 namespace arref {
 
-// Up to 16 rays from one origin traced as one Embree packet: the rays of an image row are
-// coherent, so a packet walks the BVH once for all of them (docs/engine.md, "Ray packets").
+// Up to 16 rays from one origin traced as one Embree packet (TraceRow's).
 class RayPacket {
  public:
   static constexpr int kRays = 16;
@@ -53,5 +52,27 @@ class RayPacket {
   alignas(64) int valid_[kRays];
   float max_range_;
 };
+
+// Traces rays begin..end-1 of an image row from origin in packets of RayPacket::kRays: the rays of
+// a row are coherent, so a packet walks the BVH once for all of them (docs/engine.md, "Ray
+// packets"). direction(i, &dir) sets ray i's unit direction, or returns false for a ray not
+// traced; on_hit(i, dir, distance, normal, instance) is called for each ray that hits.
+template <class Direction, class OnHit>
+void TraceRow(RTCScene scene, const Vec3& origin, double max_range_m, int begin, int end, Direction direction,
+              OnHit on_hit) {
+  RTCIntersectContext context;
+  rtcInitIntersectContext(&context);
+  RayPacket packet(max_range_m);
+  Vec3 dirs[RayPacket::kRays];
+  for (int first = begin; first < end; first += RayPacket::kRays) {
+    const int lanes = std::min(RayPacket::kRays, end - first);
+    packet.Clear();
+    for (int k = 0; k < lanes; ++k)
+      if (direction(first + k, &dirs[k])) packet.Set(k, origin, dirs[k]);
+    packet.Trace(scene, &context);
+    for (int k = 0; k < lanes; ++k)
+      if (packet.Hit(k)) on_hit(first + k, dirs[k], packet.Distance(k), packet.Normal(k), packet.Instance(k));
+  }
+}
 
 }  // namespace arref

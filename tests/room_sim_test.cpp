@@ -9,19 +9,13 @@
 #include "arref/scene/nearest_neighbor.h"
 #include "arref/scene/sampling.h"
 #include "arref/sim/room_simulator.h"
+#include "builtin_robot.h"
 #include "test_support.h"
 
 namespace arref::sim {
 namespace {
 
-const RobotModel& BuiltinRobot() {
-  static const RobotModel robot = [] {
-    auto r = RobotModel::Load(testing::BuiltinRobotUrdf());
-    if (!r.ok()) throw std::runtime_error(r.status().ToString());
-    return std::move(r).value();
-  }();
-  return robot;
-}
+using testing::BuiltinRobot;
 
 TriangleMesh Merged(const SimulatedRoom& room) {
   SpatialMesh map;

@@ -10,19 +10,13 @@
 #include "arref/robot/robot_model.h"
 #include "arref/scene/metrics.h"
 #include "arref/sim/room_simulator.h"
+#include "builtin_robot.h"
 #include "test_support.h"
 
 namespace arref {
 namespace {
 
-const RobotModel& BuiltinRobot() {
-  static const RobotModel robot = [] {
-    auto r = RobotModel::Load(testing::BuiltinRobotUrdf());
-    if (!r.ok()) throw std::runtime_error(r.status().ToString());
-    return std::move(r).value();
-  }();
-  return robot;
-}
+using testing::BuiltinRobot;
 
 TriangleMesh Merged(const sim::SimulatedRoom& room) {
   SpatialMesh map;

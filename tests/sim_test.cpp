@@ -18,6 +18,7 @@
 #include "arref/scene/sampling.h"
 #include "arref/sim/cell_simulator.h"
 #include "arref/scene/spatial_mesh.h"
+#include "builtin_robot.h"
 #include "test_support.h"
 
 namespace arref::sim {
@@ -25,14 +26,7 @@ namespace {
 
 constexpr double kDeg = std::numbers::pi / 180.0;
 
-const RobotModel& BuiltinRobot() {
-  static const RobotModel robot = [] {
-    auto r = RobotModel::Load(testing::BuiltinRobotUrdf());
-    if (!r.ok()) throw std::runtime_error(r.status().ToString());
-    return std::move(r).value();
-  }();
-  return robot;
-}
+using testing::BuiltinRobot;
 
 JointValues ReachingPose() { return {{"joint_a2", -1.2}, {"joint_a3", 1.0}, {"joint_a5", 0.5}}; }
 

@@ -6,7 +6,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstring>
 #include <limits>
 #include <numbers>
 #include <string>
@@ -85,17 +84,7 @@ Result<RayCaster> RayCaster::BuildScene(std::unique_ptr<Impl> impl, const Triang
   const RTCBuildQuality quality = build == Build::kForOneUse ? RTC_BUILD_QUALITY_LOW : RTC_BUILD_QUALITY_MEDIUM;
   impl->scene = rtcNewScene(impl->device);
   rtcSetSceneBuildQuality(impl->scene, quality);
-  RTCGeometry geom = rtcNewGeometry(impl->device, RTC_GEOMETRY_TYPE_TRIANGLE);
-  auto* vb = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                                                         3 * sizeof(float), mesh.vertices.size()));
-  auto* ib = static_cast<unsigned*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
-                                                            3 * sizeof(unsigned), mesh.triangles.size()));
-  for (std::size_t i = 0; i < mesh.vertices.size(); ++i) std::memcpy(vb + 3 * i, mesh.vertices[i].data(), 12);
-  for (std::size_t i = 0; i < mesh.triangles.size(); ++i) std::memcpy(ib + 3 * i, mesh.triangles[i].data(), 12);
-  rtcSetGeometryBuildQuality(geom, quality);
-  rtcCommitGeometry(geom);
-  rtcAttachGeometry(impl->scene, geom);
-  rtcReleaseGeometry(geom);
+  AttachTriangles(impl->device, impl->scene, mesh, quality);
   if (also) {
     RTCGeometry instance = rtcNewGeometry(impl->device, RTC_GEOMETRY_TYPE_INSTANCE);
     rtcSetGeometryInstancedScene(instance, also->impl_->scene);

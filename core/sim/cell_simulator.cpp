@@ -118,13 +118,6 @@ double VoxelSize(const FusionOptions& f) {
 
 namespace detail {
 
-std::uint64_t SplitMix64(std::uint64_t x) {
-  x += 0x9E3779B97F4A7C15ull;
-  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
-  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
-  return x ^ (x >> 31);
-}
-
 // Counter-based Gaussian (Box-Muller on hashed uniforms): a pixel's noise depends only on
 // (seed, view, pixel), never on which thread drew it first.
 double HashGaussian(std::uint64_t seed, std::uint64_t view, std::uint64_t pixel) {

@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "arref/base/geometry.h"
+#include "arref/base/split_mix.h"
 #include "arref/base/status.h"
 #include "arref/fusion/raycaster.h"
 #include "arref/sim/cell_simulator.h"
@@ -17,7 +18,7 @@ namespace arref::sim::detail {
 constexpr double kSecondsPerView = 0.5;
 constexpr double kNoiseSigmasInBand = 6.0;  // TSDF truncation of at least this many depth sigmas
 
-std::uint64_t SplitMix64(std::uint64_t x);
+using arref::SplitMix64;
 // Counter-based Gaussian: a pixel's noise depends only on (seed, view, pixel).
 double HashGaussian(std::uint64_t seed, std::uint64_t view, std::uint64_t pixel);
 // Gaussian noise of scan.depth_noise_m along every ray of the image (view-th image of a scan).

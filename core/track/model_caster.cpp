@@ -6,7 +6,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstring>
 #include <limits>
 #include <numbers>
 
@@ -51,16 +50,7 @@ namespace {
 
 RTCScene BuildLinkScene(RTCDevice device, const TriangleMesh& mesh) {
   RTCScene scene = rtcNewScene(device);
-  RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
-  auto* vb = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
-                                                         3 * sizeof(float), mesh.vertices.size()));
-  auto* ib = static_cast<unsigned*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
-                                                            3 * sizeof(unsigned), mesh.triangles.size()));
-  for (std::size_t i = 0; i < mesh.vertices.size(); ++i) std::memcpy(vb + 3 * i, mesh.vertices[i].data(), 12);
-  for (std::size_t i = 0; i < mesh.triangles.size(); ++i) std::memcpy(ib + 3 * i, mesh.triangles[i].data(), 12);
-  rtcCommitGeometry(geom);
-  rtcAttachGeometry(scene, geom);
-  rtcReleaseGeometry(geom);
+  AttachTriangles(device, scene, mesh, RTC_BUILD_QUALITY_MEDIUM);  // Embree's default quality
   rtcCommitScene(scene);
   return scene;
 }

@@ -140,7 +140,6 @@ struct Tracker::Impl {
   int StrideFor(const DepthIntrinsics& c) const {
     return settings.stride > 0 ? settings.stride : std::max(1, (c.width + 159) / 160);
   }
-  Status PoseModel(const JointValues& given);
   ModelView RenderModel(const DepthFrame& f, const Iso3& T_world_base) const;
   Measurement Measure(const DepthFrame& f, const Iso3& T0, const std::vector<double>& distances, int iterations,
                       TrackResult* out, ModelView* view_out = nullptr) const;
@@ -195,10 +194,6 @@ bool Tracker::Impl::CameraJumped(const DepthFrame& f) const {
   const Iso3 delta = previous_camera->second.inverse() * f.T_world_camera;
   const double angle_deg = Eigen::AngleAxisd(delta.linear()).angle() / kDeg;
   return delta.translation().norm() / dt > settings.camera_jump_m_per_s || angle_deg / dt > settings.camera_jump_deg_per_s;
-}
-
-Status Tracker::Impl::PoseModel(const JointValues& given) {
-  return caster.Pose(*robot, robot->ClampedToLimits(given));
 }
 
 PointCloud Tracker::Impl::DepthPoints(const DepthFrame& f, const ModelView& view, const Iso3& T_world_base,
@@ -739,7 +734,7 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
   Impl& I = *impl_;
   Impl::Step st(frame, I.CameraJumped(frame));
   LapTimer lap;
-  ARREF_RETURN_IF_ERROR(I.PoseModel(joints).WithContext("tracker: posing the robot"));
+  ARREF_RETURN_IF_ERROR(I.caster.Pose(*I.robot, I.robot->ClampedToLimits(joints)).WithContext("tracker: posing the robot"));
   st.out.model_ms += lap.Lap();
   const TrackerSettings& s = I.settings;
   I.ExplainByFilter(st);

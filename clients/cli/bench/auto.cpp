@@ -15,6 +15,7 @@
 #include <map>
 
 #include "arref/base/builtin.h"
+#include "arref/base/split_mix.h"
 #include "arref/fusion/model_reconstruction.h"
 #include "arref/fusion/robot_side.h"
 #include "arref/pipeline/seedless.h"
@@ -24,13 +25,6 @@
 
 namespace arref::bench {
 namespace {
-
-std::uint64_t Mix(std::uint64_t x) {  // SplitMix64
-  x += 0x9E3779B97F4A7C15ull;
-  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
-  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
-  return x ^ (x >> 31);
-}
 
 struct AutoRun {
   std::string robot, mesher, method, other;
@@ -228,7 +222,7 @@ Status AutoExperiment(const Config& config, Tables* tables) {
   for (const auto& m : config.auto_methods)
     if (auto parsed = ParseMethod(m); !parsed.ok()) return parsed.status().WithContext("--auto-methods");
   // The held-back split draws its rooms from a stream of its own.
-  const std::uint64_t stream = heldout ? Mix(config.rng_seed ^ 0x4155544Fu ^ 0x48454C44u) : Mix(config.rng_seed ^ 0x4155544Fu);
+  const std::uint64_t stream = heldout ? SplitMix64(config.rng_seed ^ 0x4155544Fu ^ 0x48454C44u) : SplitMix64(config.rng_seed ^ 0x4155544Fu);
   struct Task {
     std::size_t robot;
     sim::Mesher mesher;
@@ -240,7 +234,7 @@ Status AutoExperiment(const Config& config, Tables* tables) {
   for (std::size_t r = 0; r < robots.size(); ++r)
     for (int arms : config.auto_arms)
       for (int i = 0; i < per; ++i) {
-        const std::uint64_t seed = Mix(stream ^ Mix(std::hash<std::string>{}(robots[r].label)) ^ Mix(static_cast<std::uint64_t>(arms * 1000 + i + 1)));
+        const std::uint64_t seed = SplitMix64(stream ^ SplitMix64(std::hash<std::string>{}(robots[r].label)) ^ SplitMix64(static_cast<std::uint64_t>(arms * 1000 + i + 1)));
         for (sim::Mesher m : meshers) tasks.push_back({r, m, arms, i, seed});  // the same room layout for both meshers
       }
   spdlog::info("bench: auto ({} split): {} robots, {} rooms, methods {}", rc.split, robots.size(), tasks.size(),

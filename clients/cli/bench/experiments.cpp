@@ -11,6 +11,7 @@
 #include <numbers>
 
 #include "arref/base/builtin.h"
+#include "arref/base/split_mix.h"
 #include "arref/robot/robot_model.h"
 #include "bench.h"
 
@@ -165,13 +166,6 @@ std::vector<Job> PerturbJobs(const Cell& cell, int s, const std::string& method,
   return jobs;
 }
 
-std::uint64_t Mix(std::uint64_t x) {  // SplitMix64: separate streams from one seed
-  x += 0x9E3779B97F4A7C15ull;
-  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
-  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
-  return x ^ (x >> 31);
-}
-
 }  // namespace
 
 Result<std::vector<BenchRobot>> LoadBenchRobots(const RobustnessConfig& rc, bool keep_heldout, const std::string& experiment) {
@@ -222,7 +216,7 @@ Status RobustnessExperiment(const Config& config, Tables* tables) {
   const int cells_per = config.quick ? 1 : rc.cells, seeds_per = config.quick ? 1 : rc.seeds;
   // The held-out split draws from a stream of its own: none of its cells or seeds was seen in
   // development.
-  const std::uint64_t stream = heldout ? Mix(config.rng_seed ^ 0x48454C44u) : Mix(config.rng_seed ^ 0x444556u);
+  const std::uint64_t stream = heldout ? SplitMix64(config.rng_seed ^ 0x48454C44u) : SplitMix64(config.rng_seed ^ 0x444556u);
   std::deque<Cell> cells;  // stable addresses for the jobs
   std::vector<Job> jobs;
   for (std::size_t r = 0; r < robots->size(); ++r) {
@@ -231,7 +225,7 @@ Status RobustnessExperiment(const Config& config, Tables* tables) {
       const std::string& kind = kAllKinds[static_cast<std::size_t>(i) % kAllKinds.size()];
       // Keyed by the robot's name, not its place in --robots: a robot's cells stay the same
       // whichever others are measured with it.
-      const std::uint64_t cell_seed = Mix(stream ^ Mix(std::hash<std::string>{}(robot.label)) ^ Mix(static_cast<std::uint64_t>(i) + 1));
+      const std::uint64_t cell_seed = SplitMix64(stream ^ SplitMix64(std::hash<std::string>{}(robot.label)) ^ SplitMix64(static_cast<std::uint64_t>(i) + 1));
       std::shared_ptr<const RobotSide> side;
       for (sim::Mesher mesher : meshers) {
         auto cell = MakeCell(*robot.model, kind, i, cell_seed, mesher, side, rc.without);
@@ -242,7 +236,7 @@ Status RobustnessExperiment(const Config& config, Tables* tables) {
         for (sim::SeedFamily family : families) {
           sim::SeedNoise noise;
           noise.family = family;
-          std::mt19937_64 seed_rng(Mix(cell_seed ^ Mix(0x5EED0000u + static_cast<std::uint64_t>(family))));
+          std::mt19937_64 seed_rng(SplitMix64(cell_seed ^ SplitMix64(0x5EED0000u + static_cast<std::uint64_t>(family))));
           const std::vector<Iso3> seeds = sim::DrawSeeds(c.sim.T_world_base, noise, seeds_per, seed_rng);
           for (const auto& method : rc.methods)
             for (int s = 0; s < seeds_per; ++s) {

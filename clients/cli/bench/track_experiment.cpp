@@ -8,10 +8,10 @@
 #include <algorithm>
 #include <filesystem>
 #include <fstream>
-#include <numbers>
 #include <unistd.h>
 
 #include "arref/base/builtin.h"
+#include "arref/base/split_mix.h"
 #include "arref/base/clock.h"
 #include "arref/scene/metrics.h"
 #include "arref/scene/sampling.h"
@@ -25,15 +25,6 @@
 
 namespace arref::bench {
 namespace {
-
-constexpr double kDeg = std::numbers::pi / 180.0;
-
-std::uint64_t MixSeed(std::uint64_t x) {  // SplitMix64
-  x += 0x9E3779B97F4A7C15ull;
-  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
-  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
-  return x ^ (x >> 31);
-}
 
 double RssMb() {
   std::ifstream statm("/proc/self/statm");
@@ -176,7 +167,7 @@ Status TrackExperiment(const Config& config, Tables* tables) {
   const bool heldout = config.robustness.split == "heldout";
   ARREF_ASSIGN_OR_RETURN(const std::vector<BenchRobot> robots, LoadBenchRobots(config.robustness, heldout, "track"));
   // The held-out split draws from a stream of its own: none of its streams was seen while developing.
-  const std::uint64_t stream = heldout ? MixSeed(config.rng_seed ^ 0x48454C44u) : MixSeed(config.rng_seed ^ 0x444556u);
+  const std::uint64_t stream = heldout ? SplitMix64(config.rng_seed ^ 0x48454C44u) : SplitMix64(config.rng_seed ^ 0x444556u);
   const std::string path = config.out_dir + "/track.md";
   std::ofstream md(path);
   if (!md) return Status::IoError("cannot write " + path);
@@ -203,8 +194,8 @@ Status TrackExperiment(const Config& config, Tables* tables) {
         spec.robot = robot.model;
         spec.options.kind = kind;
         spec.options.duration_s = tc.seconds;
-        spec.seed = MixSeed(stream ^ MixSeed(std::hash<std::string>{}(robot.label)) ^ MixSeed(static_cast<std::uint64_t>(k) + 1) ^
-                            MixSeed(static_cast<std::uint64_t>(kind) + 77));
+        spec.seed = SplitMix64(stream ^ SplitMix64(std::hash<std::string>{}(robot.label)) ^ SplitMix64(static_cast<std::uint64_t>(k) + 1) ^
+                            SplitMix64(static_cast<std::uint64_t>(kind) + 77));
         spec.baseline_frames = tc.baseline_frames;
         ARREF_ASSIGN_OR_RETURN(const StreamStats s, RunStream(spec));
         all.frames += s.frames, all.scored += s.scored, all.within += s.within, all.lost += s.lost;
@@ -251,7 +242,7 @@ Status TrackExperiment(const Config& config, Tables* tables) {
         spec.robot = robot.model;
         spec.options.duration_s = 60.0 * tc.long_minutes;
         spec.options.fps = tc.long_fps;
-        spec.seed = MixSeed(stream ^ 0x4C4F4E47ull ^ MixSeed(std::hash<std::string>{}(robot.label) + static_cast<std::uint64_t>(k)));
+        spec.seed = SplitMix64(stream ^ 0x4C4F4E47ull ^ SplitMix64(std::hash<std::string>{}(robot.label) + static_cast<std::uint64_t>(k)));
         spec.minutes = true;
         ARREF_ASSIGN_OR_RETURN(const StreamStats s, RunStream(spec));
         const double max_last = s.add_last_min_mm.empty()

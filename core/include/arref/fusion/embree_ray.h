@@ -1,16 +1,33 @@
 // Tracing an image row in Embree ray packets (rtcIntersect16): the one place that fills Embree's
-// ray layout, for the expected surfaces' ray caster (raycaster.cpp) and the tracker's model
-// caster (track/model_caster.cpp). Include only where Embree is linked.
+// ray layout and its triangle buffers, for the expected surfaces' ray caster (raycaster.cpp) and
+// the tracker's model caster (track/model_caster.cpp). Include only where Embree is linked.
 #pragma once
 
 #include <embree3/rtcore.h>
 
 #include <algorithm>
+#include <cstring>
 #include <iterator>
 
 #include "arref/base/geometry.h"
 
 namespace arref {
+
+// The mesh's triangles as one geometry of the scene, built at that quality. Embree keeps copies
+// in buffers of its own, so the mesh need not outlive the scene.
+inline void AttachTriangles(RTCDevice device, RTCScene scene, const TriangleMesh& mesh, RTCBuildQuality quality) {
+  RTCGeometry geom = rtcNewGeometry(device, RTC_GEOMETRY_TYPE_TRIANGLE);
+  auto* vb = static_cast<float*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3,
+                                                         3 * sizeof(float), mesh.vertices.size()));
+  auto* ib = static_cast<unsigned*>(rtcSetNewGeometryBuffer(geom, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3,
+                                                            3 * sizeof(unsigned), mesh.triangles.size()));
+  for (std::size_t i = 0; i < mesh.vertices.size(); ++i) std::memcpy(vb + 3 * i, mesh.vertices[i].data(), 12);
+  for (std::size_t i = 0; i < mesh.triangles.size(); ++i) std::memcpy(ib + 3 * i, mesh.triangles[i].data(), 12);
+  rtcSetGeometryBuildQuality(geom, quality);
+  rtcCommitGeometry(geom);
+  rtcAttachGeometry(scene, geom);
+  rtcReleaseGeometry(geom);
+}
 
 // Up to 16 rays from one origin traced as one Embree packet (TraceRow's).
 class RayPacket {

@@ -734,7 +734,8 @@ Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues&
   Impl& I = *impl_;
   Impl::Step st(frame, I.CameraJumped(frame));
   LapTimer lap;
-  ARREF_RETURN_IF_ERROR(I.caster.Pose(*I.robot, I.robot->ClampedToLimits(joints)).WithContext("tracker: posing the robot"));
+  const Status posed = I.caster.Pose(*I.robot, I.robot->ClampedToLimits(joints));
+  ARREF_RETURN_IF_ERROR(posed.WithContext("tracker: posing the robot"));
   st.out.model_ms += lap.Lap();
   const TrackerSettings& s = I.settings;
   I.ExplainByFilter(st);

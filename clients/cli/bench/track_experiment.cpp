@@ -11,8 +11,8 @@
 #include <unistd.h>
 
 #include "arref/base/builtin.h"
-#include "arref/base/split_mix.h"
 #include "arref/base/clock.h"
+#include "arref/base/split_mix.h"
 #include "arref/scene/metrics.h"
 #include "arref/scene/sampling.h"
 #include "arref/sim/track_simulator.h"
@@ -194,8 +194,8 @@ Status TrackExperiment(const Config& config, Tables* tables) {
         spec.robot = robot.model;
         spec.options.kind = kind;
         spec.options.duration_s = tc.seconds;
-        spec.seed = SplitMix64(stream ^ SplitMix64(std::hash<std::string>{}(robot.label)) ^ SplitMix64(static_cast<std::uint64_t>(k) + 1) ^
-                            SplitMix64(static_cast<std::uint64_t>(kind) + 77));
+        spec.seed = SplitMix64(stream ^ SplitMix64(std::hash<std::string>{}(robot.label)) ^
+                               SplitMix64(static_cast<std::uint64_t>(k) + 1) ^ SplitMix64(static_cast<std::uint64_t>(kind) + 77));
         spec.baseline_frames = tc.baseline_frames;
         ARREF_ASSIGN_OR_RETURN(const StreamStats s, RunStream(spec));
         all.frames += s.frames, all.scored += s.scored, all.within += s.within, all.lost += s.lost;

@@ -141,7 +141,6 @@ void AddRangeNoise(RangeImage& range, const ScanOptions& scan, std::uint64_t see
 
 namespace {
 
-using detail::SplitMix64;
 using detail::AddRangeNoise;
 
 struct View {

@@ -18,7 +18,6 @@ namespace arref::sim::detail {
 constexpr double kSecondsPerView = 0.5;
 constexpr double kNoiseSigmasInBand = 6.0;  // TSDF truncation of at least this many depth sigmas
 
-using arref::SplitMix64;
 // Counter-based Gaussian: a pixel's noise depends only on (seed, view, pixel).
 double HashGaussian(std::uint64_t seed, std::uint64_t view, std::uint64_t pixel);
 // Gaussian noise of scan.depth_noise_m along every ray of the image (view-th image of a scan).

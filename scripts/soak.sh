@@ -4,6 +4,7 @@
 # never reading) reconnecting and registering for SECONDS; prints throughput, latency per
 # session, every error, and the server's RSS over time (growth after the warm-up).
 # Usage: scripts/soak.sh [CLIENTS=50] [SECONDS=600] [BAD_EVERY=5]   (build/ must be built)
+# ARREF_SERVER=PATH soaks another server binary (e.g. an older tree's, for a pair in the same hour).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 clients=${1:-50}
@@ -24,7 +25,7 @@ robots:
   - id: kr5
     urdf: builtin
 YAML
-build/server/arref-server --config "$out/server.yaml" >"$out/stdout" 2>"$out/server.log" &
+"${ARREF_SERVER:-build/server/arref-server}" --config "$out/server.yaml" >"$out/stdout" 2>"$out/server.log" &
 server=$!
 trap 'kill $server 2>/dev/null || true; wait $server 2>/dev/null || true' EXIT
 port=""

@@ -16,6 +16,7 @@
 #include <limits>
 #include <memory>
 #include <numbers>
+#include <numeric>
 #include <optional>
 #include <span>
 
@@ -38,6 +39,7 @@ struct Candidate {
   Iso3 T_world_base;
   double score = 0.0;
   int iterations = 0;
+  bool settled = false;  // the pose search's settling levels ran (CoarseSearch)
 };
 
 // The heights an upright base may stand at: on each horizontal support near the seed (floor,
@@ -127,21 +129,51 @@ Result<IcpStats> AlignOrCancel(const PointCloud& source, const TargetCloud& targ
   return st;
 }
 
+// The coarse levels: the first captures each hypothesis's basin (its 30 cm reach spans the
+// 30-degree gaps between yaws), the others settle it.
+const std::vector<double> kCoarseCapture = {0.3}, kCoarseSettle = {0.15, 0.08};
+
+Candidate CoarseCandidate(const PointCloud& coarse, const TargetCloud& target, const IcpStats& st, int iterations,
+                          bool settled) {
+  return {st.T_target_source, ScoreAlignment(coarse, target, st.T_target_source, 0.03, 0.5).inlier_fraction,
+          iterations + st.iterations, settled};
+}
+
+// The settling levels for the candidates at `which` that have not had them.
+Status Settle(const PointCloud& coarse, const TargetCloud& target, std::span<const std::size_t> which,
+              const IcpSettings& s, std::vector<Candidate>* candidates) {
+  tbb::parallel_for(std::size_t{0}, which.size(), [&](std::size_t k) {
+    Candidate& c = (*candidates)[which[k]];
+    if (c.settled || Cancelled(s.cancel)) return;
+    const Result<IcpStats> st = AlignCoarseToFine(coarse, target, c.T_world_base, kCoarseSettle, s);
+    if (st.ok() && !st->cancelled) c = CoarseCandidate(coarse, target, *st, c.iterations, true);
+  });
+  return Cancelled(s.cancel) ? CancelledIn("pose search") : Status::Ok();
+}
+
+// Every hypothesis is aligned at the capture level and scored; only the `settle` best go on to
+// the settling levels, and the rest keep their captured pose and score. Only the best distinct
+// candidates are refined (refine_top), and a start that scores low once captured does not end
+// among them: the settling levels were two thirds of the search's time for the 36-48 starts
+// of 12 yaws on 3-4 support heights.
 Result<std::vector<Candidate>> CoarseSearch(const PointCloud& coarse, const TargetCloud& target,
-                                            const std::vector<Iso3>& starts, const ArrefIcpParams& p,
-                                            const CancelToken* cancel) {
+                                            const std::vector<Iso3>& starts, std::size_t settle,
+                                            const ArrefIcpParams& p, const CancelToken* cancel) {
   const IcpSettings s = YawOnly(p, 6, cancel);
   std::vector<Candidate> out(starts.size());
   // Each hypothesis polls the token (before it starts and in every iteration), so a cancel
   // ends the running ones within an iteration and skips the rest; what they leave is dropped.
   tbb::parallel_for(std::size_t{0}, starts.size(), [&](std::size_t i) {
     if (Cancelled(cancel)) return;
-    const Result<IcpStats> st = AlignCoarseToFine(coarse, target, starts[i], {0.3, 0.15, 0.08}, s);
-    if (!st.ok() || st->cancelled) return;  // no weights: only a cancel stops it
-    out[i] = {st->T_target_source, ScoreAlignment(coarse, target, st->T_target_source, 0.03, 0.5).inlier_fraction,
-              st->iterations};
+    const Result<IcpStats> st = AlignCoarseToFine(coarse, target, starts[i], kCoarseCapture, s);
+    if (st.ok() && !st->cancelled) out[i] = CoarseCandidate(coarse, target, *st, 0, false);  // no weights: only a cancel stops it
   });
   if (Cancelled(cancel)) return CancelledIn("pose search");
+  std::vector<std::size_t> order(starts.size());
+  std::iota(order.begin(), order.end(), std::size_t{0});
+  std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return out[a].score > out[b].score; });
+  order.resize(std::min(order.size(), settle));
+  ARREF_RETURN_IF_ERROR(Settle(coarse, target, order, s, &out));
   return out;
 }
 
@@ -375,7 +407,8 @@ Result<std::vector<Candidate>> SearchPoses(const ArrefIcpInput& in,
   const std::vector<double> heights = BaseHeights(in, supported);
   out->stages.push_back("yaw-search");
   ARREF_ASSIGN_OR_RETURN(std::vector<Candidate> candidates,
-                         CoarseSearch(coarse, target, Hypotheses(in.T_world_seed, heights, p, 0), p, in.cancel));
+                         CoarseSearch(coarse, target, Hypotheses(in.T_world_seed, heights, p, 0),
+                                      static_cast<std::size_t>(p.settle_top), p, in.cancel));
   const double best_coarse = Distinct(candidates, 1).front().score;
   std::vector<Candidate> refined;
   if (best_coarse >= p.expand_below_score || p.position_steps == 0) {
@@ -389,9 +422,13 @@ Result<std::vector<Candidate>> SearchPoses(const ArrefIcpInput& in,
   }
   spdlog::debug("arref-icp: best coarse score {:.2f}, refined {:.2f}: searching positions too", best_coarse,
                 refined.empty() ? 0.0 : refined.front().score);
-  ARREF_ASSIGN_OR_RETURN(const auto more, CoarseSearch(coarse, target,
-                                                       Hypotheses(in.T_world_seed, heights, p, p.position_steps), p,
-                                                       in.cancel));
+  // The wide search settles every start, the yaw search's too: pruned to the best few before
+  // its true start has settled, it lost the robot (docs/robustness.md, "settling only the best").
+  std::vector<std::size_t> all(candidates.size());
+  std::iota(all.begin(), all.end(), std::size_t{0});
+  ARREF_RETURN_IF_ERROR(Settle(coarse, target, all, YawOnly(p, 6, in.cancel), &candidates));
+  const std::vector<Iso3> wide = Hypotheses(in.T_world_seed, heights, p, p.position_steps);
+  ARREF_ASSIGN_OR_RETURN(const auto more, CoarseSearch(coarse, target, wide, wide.size(), p, in.cancel));
   candidates.insert(candidates.end(), more.begin(), more.end());
   out->stages.push_back("position-search");
   out->step_ms.emplace_back("pose-search", laps->Lap());
@@ -407,8 +444,8 @@ Result<RegistrationOutput> RegisterArrefIcp(const ArrefIcpInput& in) {
   if (!in.model_base.has_normals() || !in.scene_world.has_normals() ||
       (in.model_expected && !in.model_expected->has_normals()))
     return Status::FailedPrecondition("arref-icp needs normals on model and scene points");
-  if (p.yaw_hypotheses < 1 || p.height_offsets_m.empty() || p.refine_top < 1 || p.position_steps < 0)
-    return Status::InvalidArgument("arref-icp: yaw hypotheses, heights and refine_top must be >= 1");
+  if (p.yaw_hypotheses < 1 || p.height_offsets_m.empty() || p.refine_top < 1 || p.settle_top < 1 || p.position_steps < 0)
+    return Status::InvalidArgument("arref-icp: yaw hypotheses, heights, settle_top and refine_top must be >= 1");
   if (Cancelled(in.cancel)) return CancelledIn("model preparation");
   ARREF_ASSIGN_OR_RETURN(const auto model, FittedModel(in));
   const PointCloud& fine = *model[2];

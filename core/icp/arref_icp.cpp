@@ -130,8 +130,9 @@ Result<IcpStats> AlignOrCancel(const PointCloud& source, const TargetCloud& targ
 }
 
 // The coarse levels: the first captures each hypothesis's basin (its 30 cm reach spans the
-// 30-degree gaps between yaws), the others settle it.
+// 30-degree gaps between yaws), the others settle it; 6 iterations each.
 const std::vector<double> kCoarseCapture = {0.3}, kCoarseSettle = {0.15, 0.08};
+IcpSettings CoarseSettings(const ArrefIcpParams& p, const CancelToken* cancel) { return YawOnly(p, 6, cancel); }
 
 Candidate CoarseCandidate(const PointCloud& coarse, const TargetCloud& target, const IcpStats& st, int iterations,
                           bool settled) {
@@ -159,14 +160,15 @@ Status Settle(const PointCloud& coarse, const TargetCloud& target, std::span<con
 Result<std::vector<Candidate>> CoarseSearch(const PointCloud& coarse, const TargetCloud& target,
                                             const std::vector<Iso3>& starts, std::size_t settle,
                                             const ArrefIcpParams& p, const CancelToken* cancel) {
-  const IcpSettings s = YawOnly(p, 6, cancel);
+  const IcpSettings s = CoarseSettings(p, cancel);
   std::vector<Candidate> out(starts.size());
   // Each hypothesis polls the token (before it starts and in every iteration), so a cancel
   // ends the running ones within an iteration and skips the rest; what they leave is dropped.
   tbb::parallel_for(std::size_t{0}, starts.size(), [&](std::size_t i) {
     if (Cancelled(cancel)) return;
     const Result<IcpStats> st = AlignCoarseToFine(coarse, target, starts[i], kCoarseCapture, s);
-    if (st.ok() && !st->cancelled) out[i] = CoarseCandidate(coarse, target, *st, 0, false);  // no weights: only a cancel stops it
+    // No weights: only a cancel stops it.
+    if (st.ok() && !st->cancelled) out[i] = CoarseCandidate(coarse, target, *st, 0, false);
   });
   if (Cancelled(cancel)) return CancelledIn("pose search");
   std::vector<std::size_t> order(starts.size());
@@ -426,7 +428,7 @@ Result<std::vector<Candidate>> SearchPoses(const ArrefIcpInput& in,
   // its true start has settled, it lost the robot (docs/robustness.md, "settling only the best").
   std::vector<std::size_t> all(candidates.size());
   std::iota(all.begin(), all.end(), std::size_t{0});
-  ARREF_RETURN_IF_ERROR(Settle(coarse, target, all, YawOnly(p, 6, in.cancel), &candidates));
+  ARREF_RETURN_IF_ERROR(Settle(coarse, target, all, CoarseSettings(p, in.cancel), &candidates));
   const std::vector<Iso3> wide = Hypotheses(in.T_world_seed, heights, p, p.position_steps);
   ARREF_ASSIGN_OR_RETURN(const auto more, CoarseSearch(coarse, target, wide, wide.size(), p, in.cancel));
   candidates.insert(candidates.end(), more.begin(), more.end());

@@ -396,14 +396,19 @@ void TsdfVolume::CellVertices(int block, const NeighbourTable& nb, std::vector<i
                               std::vector<Vec3f>& vertices) const {
   cell_vertex.assign(kVoxelsPerBlock, -1);
   const Eigen::Vector3i base = blocks_[block].index * B;
+  const std::vector<Voxel>& own = blocks_[block].voxels;
   for (int z = 0; z < B; ++z)
     for (int y = 0; y < B; ++y)
       for (int x = 0; x < B; ++x) {
         std::array<float, 8> d;
         int negative = 0;
         bool seen = true;
+        // A cell wholly inside the block reads its corners there; only the cells on its far faces
+        // need the neighbour table.
+        const bool inside = x < B - 1 && y < B - 1 && z < B - 1;
         for (int c = 0; c < 8 && seen; ++c) {
-          const Voxel* vox = VoxelAt(nb, x + (c & 1), y + ((c >> 1) & 1), z + ((c >> 2) & 1));
+          const int cx = x + (c & 1), cy = y + ((c >> 1) & 1), cz = z + ((c >> 2) & 1);
+          const Voxel* vox = inside ? &own[LocalIndex(cx, cy, cz)] : VoxelAt(nb, cx, cy, cz);
           seen = vox != nullptr && vox->w > 0;
           if (seen) negative += (d[c] = vox->d) < 0;
         }
@@ -432,15 +437,18 @@ void TsdfVolume::CellQuads(int block, const NeighbourTable& nb, const std::vecto
   // Around an edge along axis a, the cells in the plane of axes u = a+1, v = a+2 (cyclic, so
   // u x v = a) listed counter-clockwise as seen from +a.
   static constexpr int kAround[4][2] = {{-1, -1}, {0, -1}, {0, 0}, {-1, 0}};
+  const std::vector<Voxel>& own = blocks_[block].voxels;
   for (int z = 0; z < B; ++z)
     for (int y = 0; y < B; ++y)
       for (int x = 0; x < B; ++x) {
-        const Voxel& v0 = blocks_[block].voxels[LocalIndex(x, y, z)];
+        const Voxel& v0 = own[LocalIndex(x, y, z)];
         if (v0.w <= 0) continue;
+        // Away from the block's faces every voxel and cell read lies in the block itself.
+        const bool inside = x > 0 && y > 0 && z > 0 && x < B - 1 && y < B - 1 && z < B - 1;
         for (int a = 0; a < 3; ++a) {
           Eigen::Vector3i p1(x, y, z);
           ++p1[a];
-          const Voxel* v1 = VoxelAt(nb, p1.x(), p1.y(), p1.z());
+          const Voxel* v1 = inside ? &own[LocalIndex(p1.x(), p1.y(), p1.z())] : VoxelAt(nb, p1.x(), p1.y(), p1.z());
           if (v1 == nullptr || v1->w <= 0 || (v0.d < 0) == (v1->d < 0)) continue;
           std::array<std::uint32_t, 4> quad;
           bool complete = true;
@@ -448,7 +456,7 @@ void TsdfVolume::CellQuads(int block, const NeighbourTable& nb, const std::vecto
             Eigen::Vector3i c(x, y, z);
             c[(a + 1) % 3] += kAround[k][0];
             c[(a + 2) % 3] += kAround[k][1];
-            const int b = nb[NeighbourSlot(c.x(), c.y(), c.z())];
+            const int b = inside ? block : nb[NeighbourSlot(c.x(), c.y(), c.z())];
             const int id = b < 0 ? -1 : cell_vertex[b][LocalIndex(c.x(), c.y(), c.z())];
             complete = id >= 0;
             if (complete) quad[k] = first_vertex[b] + static_cast<std::uint32_t>(id);

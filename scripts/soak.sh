@@ -5,6 +5,8 @@
 # session, every error, and the server's RSS over time (growth after the warm-up).
 # Usage: scripts/soak.sh [CLIENTS=50] [SECONDS=600] [BAD_EVERY=5]   (build/ must be built)
 # ARREF_SERVER=PATH soaks another server binary (e.g. an older tree's, for a pair in the same hour).
+# SOAK_NEW_SEEDS=1: each good headset's 2nd and 3rd request move the seed to the cell's next one
+# (a new crop each time) instead of repeating the same request.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 clients=${1:-50}
@@ -51,7 +53,8 @@ status=0
 cpu_ticks() { awk '{print $14 + $15}' /proc/$server/stat; }
 cpu_start=$(cpu_ticks)
 build/clients/mock_headset/arref-mock-headset --port "$port" --clients "$clients" --soak "$seconds" \
-  --bad-every "$bad_every" --batch-interval 0.01 --timeout 300 --log-level error | tee "$out/mock" || status=$?
+  --bad-every "$bad_every" --batch-interval 0.01 --timeout 300 --log-level error \
+  ${SOAK_NEW_SEEDS:+--new-seed-each-repeat} | tee "$out/mock" || status=$?
 cpu_end=$(cpu_ticks)
 kill $sampler 2>/dev/null || true
 results=$(sed -n 's/^soak: .* \([0-9]*\) results, .*/\1/p' "$out/mock")

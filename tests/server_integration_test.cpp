@@ -353,6 +353,27 @@ TEST(ServerIntegration, QuantizedVerticesAndRepeatedRequests) {
   for (const auto& r : run.registrations) EXPECT_LE(r.error->add_m, 0.1);
 }
 
+// The soak's option of a new seed for each repeated request (scripts/soak.sh, SOAK_NEW_SEEDS): the
+// session's seed moves, so the repeats are new registrations, not the first one again; each
+// from a user-like seed still finds the robot.
+TEST(ServerIntegration, RepeatsWithANewSeedEachAreNewRegistrations) {
+  ServerProcess server;
+  HeadsetOptions o = Options(server);
+  o.repeat = 3;
+  const HeadsetRun same = RunHeadset(Scene(1), o);
+  o.new_seed_each_repeat = true;
+  const HeadsetRun moved = RunHeadset(Scene(1), o);
+  ASSERT_TRUE(same.status.ok() && moved.status.ok()) << same.status.ToString() << " / " << moved.status.ToString();
+  ASSERT_EQ(same.registrations.size(), 3u);
+  ASSERT_EQ(moved.registrations.size(), 3u);
+  const auto pose = [](const RegistrationOutcome& r) { return r.T_world_base.matrix(); };
+  EXPECT_EQ(pose(same.registrations[1]), pose(same.registrations[0]));
+  EXPECT_EQ(pose(moved.registrations[0]), pose(same.registrations[0]));  // the first seed is the same
+  EXPECT_NE(pose(moved.registrations[1]), pose(moved.registrations[0]));
+  EXPECT_NE(pose(moved.registrations[2]), pose(moved.registrations[1]));
+  for (const auto& r : moved.registrations) EXPECT_LE(r.error->add_m, 0.01) << "request " << r.request_id;
+}
+
 // ---------------------------------------------------------------- concurrency
 
 TEST(ServerIntegration, TwentyConcurrentHeadsetsAllServed) {

@@ -263,8 +263,10 @@ class Runner {
     if (!Upload()) return;
     if (o_.misbehaviour == Misbehaviour::kCorruptFrame) return SendCorrupt();
     if (!SendSeedAndJoints()) return;
-    for (int i = 0; i < o_.repeat; ++i)
+    for (int i = 0; i < o_.repeat; ++i) {
+      if (i > 0 && o_.new_seed_each_repeat && !SendSeed(o_.seed_index + i)) return;
       if (!Register(o_.first_request_id + static_cast<std::uint64_t>(i))) return;
+    }
     out_->status = Status::Ok();
   }
 
@@ -369,13 +371,18 @@ class Runner {
     return true;
   }
 
-  bool SendSeedAndJoints() {
+  // The scene's seed `index` (modulo their count) as the session's seed.
+  bool SendSeed(int index) {
     if (scene_.seeds.empty()) return Fail(Status::InvalidArgument("the scene has no seed"));
-    const Iso3& seed = scene_.seeds[static_cast<std::size_t>(o_.seed_index) % scene_.seeds.size()];
+    const Iso3& seed = scene_.seeds[static_cast<std::size_t>(index) % scene_.seeds.size()];
     pb::ClientMessage m;
     *m.mutable_seed_pose()->mutable_t_world_seed() = wire::PoseToProto(seed, FrameConvention::kUnity);
     m.mutable_seed_pose()->set_frame(pb::FRAME_CONVENTION_UNITY);
-    if (!Send(m)) return false;
+    return Send(m);
+  }
+
+  bool SendSeedAndJoints() {
+    if (!SendSeed(o_.seed_index)) return false;
     if (scene_.joints.empty()) return true;
     pb::ClientMessage j;
     j.mutable_joint_state()->set_robot_id(o_.robot_id);

@@ -87,6 +87,7 @@ struct HeadsetOptions {
   double resend_fraction = 0.2;    // surfaces of the first batch re-sent as updates in the last
   double quantize_scale = 0.0;     // > 0: int16 vertices with this step (m)
   int repeat = 1;                  // registrations on the same session
+  bool new_seed_each_repeat = false;  // each repeat moves the seed to the scene's next one first
   std::uint64_t first_request_id = 1;
   std::string method;              // "" = server default
   bool send_head_path = true;      // RegisterRequest.head_path, when the scene has one

@@ -68,6 +68,9 @@ void AddFlags(CLI::App& app, Args& a) {
   app.add_flag("!--no-head-path", o.send_head_path,
                "Do not send where the wearer walked while mapping (RegisterRequest.head_path)");
   app.add_option("--repeat", o.repeat, "Registrations per headset")->capture_default_str();
+  app.add_flag("--new-seed-each-repeat", o.new_seed_each_repeat,
+               "Each registration after the first moves the seed to the scene's next one (a new crop each time; "
+               "also in --soak)");
   app.add_option("--clients", a.clients, "Concurrent headsets (latency figures)")->capture_default_str();
   app.add_option("--timeout", o.timeout_s, "Give up waiting for a reply after this many seconds");
   app.add_option("--name", o.client_name, "Client name sent in Hello");

@@ -368,9 +368,10 @@ Result<WholeMapReport> AutoSearch(const RobotSide& robot, const TriangleMesh& sc
   RegistrationOptions each = options;
   each.method = Method::kArrefIcp;
   each.arref_icp.expected_voxel_m = voxel;  // one voxel for every crop: the robot's surfaces are made once
-  // Every start of the yaw search settled: a candidate's search is never widened to positions
-  // (below), so a start pruned before it settled has nothing behind it. Settling only the best 8
-  // lost 2 of 40 held-back rooms and said one fit 22 mm off OK (docs/seedless.md).
+  // Every start of the yaw search settled, in both tiers: a candidate's first search is never
+  // widened to positions (below), so a start pruned before it settled has nothing behind it.
+  // Settling only the best 8 in both tiers lost 2 of 40 held-back rooms and said one fit 22 mm
+  // off OK (docs/robustness.md, "Settling only the best captured starts").
   each.arref_icp.settle_top = std::numeric_limits<int>::max();
   RegistrationOptions search = each;
   search.arref_icp.select_walk = false;

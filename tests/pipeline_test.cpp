@@ -9,18 +9,21 @@
 #include <condition_variable>
 #include <limits>
 #include <mutex>
+#include <numbers>
 #include <string>
 #include <string_view>
 #include <thread>
 
 #include "arref/base/cancel.h"
 #include "arref/fusion/robot_side.h"
+#include "arref/icp/arref_icp.h"
 #include "arref/pipeline/pipeline.h"
 #include "arref/pipeline/seedless.h"
 #include "arref/robot/robot_model.h"
 #include "arref/scene/metrics.h"
 #include "arref/scene/spatial_mesh.h"
 #include "arref/sim/cell_simulator.h"
+#include "robot_surface_scene.h"
 #include "test_support.h"
 
 namespace arref {
@@ -141,6 +144,33 @@ TEST(RegisterScene, ArrefIcpWithPointsOnlyWithin10mm) {
   EXPECT_EQ(std::count(report.stages_run.begin(), report.stages_run.end(), "expected-surface"), 0);
 }
 
+// The yaw search's capture level reaches across half the gap between two yaw hypotheses at the
+// robot's outer points, whatever the robot's size: a robot three times the built-in one, whose
+// outer points a 15-degree turn moves about 0.6 m, is found from a seed 0.25 m off and turned
+// 15 degrees (exactly between two hypotheses) without widening the search. With the capture
+// fixed at 0.3 m it ended 2.7 m off (0.23 m off at twice the built-in size).
+TEST(RegisterArrefIcp, ALargeRobotIsCapturedAcrossTheGapBetweenYaws) {
+  ASSERT_OK_AND_ASSIGN(testing::RobotSurfaceScene c, testing::MakeRobotSurfaceScene());
+  constexpr float kScale = 3.0f;
+  PointCloud scene_base = c.scene_world;
+  scene_base.Transform(c.T_world_base.inverse());
+  for (Vec3f& q : c.model_base.points) q *= kScale;
+  for (Vec3f& q : scene_base.points) q *= kScale;
+  PointCloud scene_world = scene_base;
+  scene_world.Transform(c.T_world_base);
+  const TargetCloud target(scene_world);
+  ArrefIcpParams params;
+  params.position_steps = 0;  // the yaw search alone
+  // The seed 0.25 m off, at the height the search starts from (no supports: 0.15 m above).
+  const Iso3 seed = c.T_world_base * MakeYawPose(0.25, 0.0, 0.15, 15 * std::numbers::pi / 180);
+  const ArrefIcpInput in{c.model_base, scene_world, target, seed, params};
+  ASSERT_OK_AND_ASSIGN(const RegistrationOutput out, RegisterArrefIcp(in));
+  const double add = ComparePoses(out.T_world_base, c.T_world_base, c.model_base.points).add_m;
+  RecordProperty("add_mm", std::to_string(add * 1e3));
+  EXPECT_LT(add, kAddGoalM);
+  EXPECT_EQ(std::count(out.stages.begin(), out.stages.end(), "position-search"), 0);
+}
+
 TEST(RegisterScene, EmptyCropIsFailedPrecondition) {
   ARREF_SHARED_CELL(c);
   Iso3 far = c.cell.seeds[0];
@@ -184,6 +214,12 @@ TEST(RegisterScene, BadOptionsAreInvalidArgument) {
   EXPECT_EQ(code(o), StatusCode::kInvalidArgument);
   o = {};
   o.arref_icp.settle_top = 0;
+  EXPECT_EQ(code(o), StatusCode::kInvalidArgument);
+  o = {};
+  o.arref_icp.placement_error_m = 0;
+  EXPECT_EQ(code(o), StatusCode::kInvalidArgument);
+  o = {};
+  o.arref_icp.position_step_m = std::numeric_limits<double>::infinity();
   EXPECT_EQ(code(o), StatusCode::kInvalidArgument);
 }
 

@@ -88,16 +88,57 @@ Iso3 RestOnSupport(const ArrefIcpInput& in, const std::vector<double>& supported
   return T_world_base;
 }
 
+// Correspondence distances of the refinement: from capturing a coarse pose's basin (approach,
+// on ArrefIcpParams::approach_points) down to the noise of a headset mesh (polish: depth noise
+// of 4-12 mm). A pose already refined once is only polished.
+const std::vector<double> kApproachLevels = {0.08, 0.04};
+const std::vector<double> kPolishLevels = {0.02, 0.012};
+
+// The pose search's lengths, from the robot's size rather than from any one robot. The capture
+// level must span half the gap between two yaw hypotheses at the robot's outer points: turned
+// by pi / n about its base axis, a point at radius r moves 2 r sin(pi / 2n) (0.26 r for 12 yaws),
+// r the 90th percentile of the fitted model's distances from that axis, so that a few outlying
+// points do not set it. It spans a user's placement error too (placement_error_m). The settling
+// levels go from half of it down to where the approach starts; the wide search's grid step is
+// the capture's reach, so that neighbouring starts' basins meet.
+struct SearchLengths {
+  std::vector<double> capture_m;  // the one capture level
+  std::vector<double> settle_m;
+  double grid_step_m = 0.0;
+};
+
+double OuterRadius(const PointCloud& model_base) {
+  std::vector<float> r;
+  r.reserve(model_base.points.size());
+  for (const Vec3f& q : model_base.points) r.push_back(q.head<2>().norm());
+  if (r.empty()) return 0.0;
+  const auto nth = r.begin() + static_cast<std::ptrdiff_t>(r.size() * 9 / 10);
+  std::nth_element(r.begin(), nth, r.end());
+  return *nth;
+}
+
+SearchLengths LengthsFor(const PointCloud& coarse_base, const ArrefIcpParams& p) {
+  const double half_gap = std::numbers::pi / p.yaw_hypotheses;
+  const double chord = 2.0 * OuterRadius(coarse_base) * std::sin(half_gap / 2.0);
+  const double capture = std::max(p.placement_error_m, chord);
+  SearchLengths out;
+  out.capture_m = {capture};
+  out.settle_m = {std::max(capture / 2, kApproachLevels.front()), kApproachLevels.front()};
+  out.grid_step_m = p.position_step_m > 0 ? p.position_step_m : capture;
+  spdlog::debug("arref-icp: capture {:.3f} m (yaw chord {:.3f} m), grid step {:.3f} m", capture, chord, out.grid_step_m);
+  return out;
+}
+
 std::vector<Iso3> Hypotheses(const Iso3& seed, const std::vector<double>& heights, const ArrefIcpParams& p,
-                             int position_steps) {
+                             double grid_step_m, int position_steps) {
   std::vector<Iso3> out;
   const Vec3 c = seed.translation();
   const double yaw0 = YawOf(seed);
   for (int ix = -position_steps; ix <= position_steps; ++ix)
     for (int iy = -position_steps; iy <= position_steps; ++iy) {
       if (position_steps > 0 && ix == 0 && iy == 0) continue;  // the centre was searched already
-      const double dx = ix * p.position_step_m, dy = iy * p.position_step_m;
-      if (position_steps > 0 && std::hypot(dx, dy) > p.seed_error_m + 0.5 * p.position_step_m) continue;
+      const double dx = ix * grid_step_m, dy = iy * grid_step_m;
+      if (position_steps > 0 && std::hypot(dx, dy) > p.seed_error_m + 0.5 * grid_step_m) continue;
       for (double z : heights)
         for (int k = 0; k < p.yaw_hypotheses; ++k)
           out.push_back(MakeYawPose(c.x() + dx, c.y() + dy, z, yaw0 + 2 * std::numbers::pi * k / p.yaw_hypotheses));
@@ -129,9 +170,8 @@ Result<IcpStats> AlignOrCancel(const PointCloud& source, const TargetCloud& targ
   return st;
 }
 
-// The coarse levels: the first captures each hypothesis's basin (its 30 cm reach spans the
-// 30-degree gaps between yaws), the others settle it; 6 iterations each.
-const std::vector<double> kCoarseCapture = {0.3}, kCoarseSettle = {0.15, 0.08};
+// The coarse levels (SearchLengths): the first captures each hypothesis's basin, the others
+// settle it; 6 iterations each.
 IcpSettings CoarseSettings(const ArrefIcpParams& p, const CancelToken* cancel) { return YawOnly(p, 6, cancel); }
 
 Candidate CoarseCandidate(const PointCloud& coarse, const TargetCloud& target, const IcpStats& st, int iterations,
@@ -142,11 +182,11 @@ Candidate CoarseCandidate(const PointCloud& coarse, const TargetCloud& target, c
 
 // The settling levels for the candidates at `which` that have not had them.
 Status Settle(const PointCloud& coarse, const TargetCloud& target, std::span<const std::size_t> which,
-              const IcpSettings& s, std::vector<Candidate>* candidates) {
+              const std::vector<double>& levels, const IcpSettings& s, std::vector<Candidate>* candidates) {
   tbb::parallel_for(std::size_t{0}, which.size(), [&](std::size_t k) {
     Candidate& c = (*candidates)[which[k]];
     if (c.settled || Cancelled(s.cancel)) return;
-    const Result<IcpStats> st = AlignCoarseToFine(coarse, target, c.T_world_base, kCoarseSettle, s);
+    const Result<IcpStats> st = AlignCoarseToFine(coarse, target, c.T_world_base, levels, s);
     if (st.ok() && !st->cancelled) c = CoarseCandidate(coarse, target, *st, c.iterations, true);
   });
   return Cancelled(s.cancel) ? CancelledIn("pose search") : Status::Ok();
@@ -159,14 +199,15 @@ Status Settle(const PointCloud& coarse, const TargetCloud& target, std::span<con
 // of 12 yaws on 3-4 support heights.
 Result<std::vector<Candidate>> CoarseSearch(const PointCloud& coarse, const TargetCloud& target,
                                             const std::vector<Iso3>& starts, std::size_t settle,
-                                            const ArrefIcpParams& p, const CancelToken* cancel) {
+                                            const SearchLengths& lengths, const ArrefIcpParams& p,
+                                            const CancelToken* cancel) {
   const IcpSettings s = CoarseSettings(p, cancel);
   std::vector<Candidate> out(starts.size());
   // Each hypothesis polls the token (before it starts and in every iteration), so a cancel
   // ends the running ones within an iteration and skips the rest; what they leave is dropped.
   tbb::parallel_for(std::size_t{0}, starts.size(), [&](std::size_t i) {
     if (Cancelled(cancel)) return;
-    const Result<IcpStats> st = AlignCoarseToFine(coarse, target, starts[i], kCoarseCapture, s);
+    const Result<IcpStats> st = AlignCoarseToFine(coarse, target, starts[i], lengths.capture_m, s);
     // No weights: only a cancel stops it.
     if (st.ok() && !st->cancelled) out[i] = CoarseCandidate(coarse, target, *st, 0, false);
   });
@@ -175,7 +216,7 @@ Result<std::vector<Candidate>> CoarseSearch(const PointCloud& coarse, const Targ
   std::iota(order.begin(), order.end(), std::size_t{0});
   std::stable_sort(order.begin(), order.end(), [&](std::size_t a, std::size_t b) { return out[a].score > out[b].score; });
   order.resize(std::min(order.size(), settle));
-  ARREF_RETURN_IF_ERROR(Settle(coarse, target, order, s, &out));
+  ARREF_RETURN_IF_ERROR(Settle(coarse, target, order, lengths.settle_m, s, &out));
   return out;
 }
 
@@ -195,12 +236,6 @@ std::vector<Candidate> Distinct(std::vector<Candidate> all, std::size_t count) {
   }
   return out;
 }
-
-// Correspondence distances of the refinement: from capturing a coarse pose's basin (approach,
-// on ArrefIcpParams::approach_points) down to the noise of a headset mesh (polish). A pose
-// already refined once is only polished.
-const std::vector<double> kApproachLevels = {0.08, 0.04};
-const std::vector<double> kPolishLevels = {0.02, 0.012};
 
 Result<Candidate> Approach(const PointCloud& approach, const TargetCloud& target, const Candidate& start,
                            const ArrefIcpParams& p, const CancelToken* cancel) {
@@ -407,10 +442,11 @@ Result<std::vector<Candidate>> SearchPoses(const ArrefIcpInput& in,
   const PointCloud& coarse = *model[0];
   const TargetCloud& target = in.scene_target;
   const std::vector<double> heights = BaseHeights(in, supported);
+  const SearchLengths lengths = LengthsFor(coarse, p);
   out->stages.push_back("yaw-search");
   ARREF_ASSIGN_OR_RETURN(std::vector<Candidate> candidates,
-                         CoarseSearch(coarse, target, Hypotheses(in.T_world_seed, heights, p, 0),
-                                      static_cast<std::size_t>(p.settle_top), p, in.cancel));
+                         CoarseSearch(coarse, target, Hypotheses(in.T_world_seed, heights, p, lengths.grid_step_m, 0),
+                                      static_cast<std::size_t>(p.settle_top), lengths, p, in.cancel));
   const double best_coarse = Distinct(candidates, 1).front().score;
   std::vector<Candidate> refined;
   if (best_coarse >= p.expand_below_score || p.position_steps == 0) {
@@ -428,9 +464,9 @@ Result<std::vector<Candidate>> SearchPoses(const ArrefIcpInput& in,
   // its true start has settled, it lost the robot (docs/robustness.md, "settling only the best").
   std::vector<std::size_t> all(candidates.size());
   std::iota(all.begin(), all.end(), std::size_t{0});
-  ARREF_RETURN_IF_ERROR(Settle(coarse, target, all, CoarseSettings(p, in.cancel), &candidates));
-  const std::vector<Iso3> wide = Hypotheses(in.T_world_seed, heights, p, p.position_steps);
-  ARREF_ASSIGN_OR_RETURN(const auto more, CoarseSearch(coarse, target, wide, wide.size(), p, in.cancel));
+  ARREF_RETURN_IF_ERROR(Settle(coarse, target, all, lengths.settle_m, CoarseSettings(p, in.cancel), &candidates));
+  const std::vector<Iso3> wide = Hypotheses(in.T_world_seed, heights, p, lengths.grid_step_m, p.position_steps);
+  ARREF_ASSIGN_OR_RETURN(const auto more, CoarseSearch(coarse, target, wide, wide.size(), lengths, p, in.cancel));
   candidates.insert(candidates.end(), more.begin(), more.end());
   out->stages.push_back("position-search");
   out->step_ms.emplace_back("pose-search", laps->Lap());
@@ -448,6 +484,8 @@ Result<RegistrationOutput> RegisterArrefIcp(const ArrefIcpInput& in) {
     return Status::FailedPrecondition("arref-icp needs normals on model and scene points");
   if (p.yaw_hypotheses < 1 || p.height_offsets_m.empty() || p.refine_top < 1 || p.settle_top < 1 || p.position_steps < 0)
     return Status::InvalidArgument("arref-icp: yaw hypotheses, heights, settle_top and refine_top must be >= 1");
+  if (!(p.placement_error_m > 0) || !(p.position_step_m >= 0) || !std::isfinite(p.placement_error_m + p.position_step_m))
+    return Status::InvalidArgument("arref-icp: placement_error_m must be > 0 m and position_step_m >= 0 m");
   if (Cancelled(in.cancel)) return CancelledIn("model preparation");
   ARREF_ASSIGN_OR_RETURN(const auto model, FittedModel(in));
   const PointCloud& fine = *model[2];

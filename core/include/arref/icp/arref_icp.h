@@ -31,7 +31,11 @@ struct ArrefIcpParams {
   double support_margin_m = 0.1;
   bool rest_on_support = true;     // a fit within a voxel of a support's height is set on it
   std::vector<double> height_offsets_m = {-0.15};
-  double position_step_m = 0.3;    // the expanded search's grid step around the seed
+  // The seed's horizontal error the yaw search captures without widening: a user's cube lies
+  // 0.1-0.3 m from the base. The capture level reaches this far, or farther on a robot whose
+  // outer points move more between two yaw hypotheses (SearchLengths, arref_icp.cpp).
+  double placement_error_m = 0.3;
+  double position_step_m = 0.0;    // the expanded search's grid step; 0: the capture level's reach
   int position_steps = 1;          // grid of (2 * steps + 1)^2 positions, within seed_error_m
   double expand_below_score = 0.35;  // widen the search when the best coarse score is lower
   double widen_below_refined_score = 0.3;  // ... or the best refined pose's (inliers at 2 cm)

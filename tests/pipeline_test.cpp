@@ -146,7 +146,7 @@ TEST(RegisterScene, ArrefIcpWithPointsOnlyWithin10mm) {
 
 // The yaw search's capture level reaches across half the gap between two yaw hypotheses at the
 // robot's outer points, whatever the robot's size: a robot three times the built-in one, whose
-// outer points a 15-degree turn moves about 0.6 m, is found from a seed 0.25 m off and turned
+// outer points a 15-degree turn moves about 0.75 m, is found from a seed 0.25 m off and turned
 // 15 degrees (exactly between two hypotheses) without widening the search. With the capture
 // fixed at 0.3 m it ended 2.7 m off (0.23 m off at twice the built-in size).
 TEST(RegisterArrefIcp, ALargeRobotIsCapturedAcrossTheGapBetweenYaws) {

@@ -67,6 +67,14 @@ double AddOf(const Cell& c, const Iso3& T_world_base) {
   return ComparePoses(T_world_base, c.cell.T_world_base, c.side->samples().points).add_m;
 }
 
+// The registration with every start of the pose search settled (settle_top beyond any count of
+// starts): what the default search's pruning is compared against.
+Result<RegistrationReport> RegisterSettlingAll(const Cell& c, const Iso3& seed) {
+  RegistrationOptions all;
+  all.arref_icp.settle_top = 1000;
+  return RegisterScene(*c.side, c.scene_world, seed, all);
+}
+
 TEST(RegisterScene, ArrefIcpWithRobotSideWithin10mm) {
   ARREF_SHARED_CELL(c);
   for (std::size_t i = 0; i < c.cell.seeds.size(); ++i) {
@@ -102,9 +110,7 @@ TEST(RegisterScene, SeedsFarBelowAndAboveTheBaseFindTheRobot) {
 TEST(RegisterScene, PoseSearchSettlesOnlyTheBestCapturedHypotheses) {
   ARREF_SHARED_CELL(c);
   const Iso3 seed = c.cell.T_world_base * MakeYawPose(0.25, -0.25, 0.2, 2.6);
-  RegistrationOptions all;
-  all.arref_icp.settle_top = 1000;
-  ASSERT_OK_AND_ASSIGN(const RegistrationReport settled_all, RegisterScene(*c.side, c.scene_world, seed, all));
+  ASSERT_OK_AND_ASSIGN(const RegistrationReport settled_all, RegisterSettlingAll(c, seed));
   ASSERT_OK_AND_ASSIGN(const RegistrationReport best_only,
                        RegisterScene(*c.side, c.scene_world, seed, RegistrationOptions{}));
   EXPECT_GT(best_only.hypotheses, RegistrationOptions{}.arref_icp.settle_top);  // so some were not settled
@@ -120,9 +126,7 @@ TEST(RegisterScene, PoseSearchSettlesOnlyTheBestCapturedHypotheses) {
 TEST(RegisterScene, TheWideSearchSettlesEveryStart) {
   ARREF_SHARED_CELL(c);
   const Iso3 seed = c.cell.T_world_base * MakeYawPose(0.6, 0.3, -0.45, 1.0);
-  RegistrationOptions all;
-  all.arref_icp.settle_top = 1000;
-  ASSERT_OK_AND_ASSIGN(const RegistrationReport settled_all, RegisterScene(*c.side, c.scene_world, seed, all));
+  ASSERT_OK_AND_ASSIGN(const RegistrationReport settled_all, RegisterSettlingAll(c, seed));
   ASSERT_OK_AND_ASSIGN(const RegistrationReport best_only,
                        RegisterScene(*c.side, c.scene_world, seed, RegistrationOptions{}));
   ASSERT_NE(std::find(best_only.stages_run.begin(), best_only.stages_run.end(), "position-search"),

@@ -154,7 +154,8 @@ ModelView ModelCaster::Render(const DepthIntrinsics& camera, const Iso3& T_base_
     TraceRow(
         impl_->top, origin, max_range_m, gu0, gu1,
         [&](int gu, Vec3* dir) {
-          *dir = R * (camera.Ray(gu * stride, gv * stride) / ray_length(gu));
+          const Vec3 ray_cam = camera.Ray(gu * stride, gv * stride);
+          *dir = R * (ray_cam / ray_cam.norm());
           return true;
         },
         [&](int gu, const Vec3& dir, float distance, const Vec3& normal, unsigned instance) {

@@ -87,14 +87,22 @@ def pair_runs(before, after, name):
     return [(b[k], a[k]) for k in b]
 
 
-def changed(before, after):
-    x, y = add_mm(before), add_mm(after)
+def changed(before, after, column="add_mm"):
+    x, y = add_mm(before, column), add_mm(after, column)
     return (x <= SUCCESS_MM) != (y <= SUCCESS_MM) or (x <= WRONG_MM) != (y <= WRONG_MM) or \
         before.get("status") != after.get("status")
 
 
-def fmt_mm(value):
+def fmt_number(value):
     return "-" if not math.isfinite(value) else f"{value:.2f}"
+
+
+def listing(items, listed, line_of):
+    """The first `listed` items, a line each, and how many more there are."""
+    lines = [line_of(item) for item in items[:listed]]
+    if len(items) > listed:
+        lines.append(f"  ... and {len(items) - listed} more (--list)")
+    return lines
 
 
 def compare_runs(before, after, listed):
@@ -108,15 +116,12 @@ def compare_runs(before, after, listed):
         same = sum(b.get("add_mm") == a.get("add_mm") for b, a in members)
         lines.append(" ".join(filter(None, group)) + f" | {sb['runs']} | {sb['10mm']} -> {sa['10mm']} | "
                      f"{sb['20mm']} -> {sa['20mm']} | {sb['ok']} -> {sa['ok']} | {sb['wrong_ok']} -> {sa['wrong_ok']} | "
-                     f"{fmt_mm(sb['median'])} -> {fmt_mm(sa['median'])} | {same}")
+                     f"{fmt_number(sb['median'])} -> {fmt_number(sa['median'])} | {same}")
     moved = [(b, a) for b, a in pairs if changed(b, a)]
     lines.append(f"runs whose outcome changed: {len(moved)} of {len(pairs)}")
-    for b, a in moved[:listed]:
-        label = " ".join(v for v in run_key(b) if v)
-        lines.append(f"  {label}: {fmt_mm(add_mm(b))} mm {b.get('status', '')} -> {fmt_mm(add_mm(a))} mm {a.get('status', '')}")
-    if len(moved) > listed:
-        lines.append(f"  ... and {len(moved) - listed} more (--list)")
-    return lines
+    return lines + listing(moved, listed, lambda pair: (
+        f"  {' '.join(v for v in run_key(pair[0]) if v)}: {fmt_number(add_mm(pair[0]))} mm {pair[0].get('status', '')}"
+        f" -> {fmt_number(add_mm(pair[1]))} mm {pair[1].get('status', '')}"))
 
 
 def room_counts(rows):
@@ -143,20 +148,16 @@ def compare_rooms(before, after, listed):
         ca = room_counts([r for k, r in a.items() if k[0] == method])
         lines.append(f"{method} | {cb['10mm']} -> {ca['10mm']} of {cb['rooms']} | {cb['20mm']} -> {ca['20mm']} | "
                      f"{cb['both']} -> {ca['both']} of {cb['two']} | {cb['wrong_ok']} -> {ca['wrong_ok']} | "
-                     f"{cb['failed']} -> {ca['failed']} of {cb['empty']} | {fmt_mm(cb['ms'])} -> {fmt_mm(ca['ms'])}")
-    moved = [k for k in b if b[k]["arms_found"] != a[k]["arms_found"] or
-             changed({"add_mm": b[k]["primary_add_mm"], "status": b[k]["status"]},
-                     {"add_mm": a[k]["primary_add_mm"], "status": a[k]["status"]})]
+                     f"{cb['failed']} -> {ca['failed']} of {cb['empty']} | {fmt_number(cb['ms'])} -> {fmt_number(ca['ms'])}")
+    moved = [k for k in b if b[k]["arms_found"] != a[k]["arms_found"] or changed(b[k], a[k], "primary_add_mm")]
     lines.append(f"rooms whose outcome changed: {len(moved)} of {len(b)}")
-    for k in moved[:listed]:
+
+    def line_of(k):
         method, robot, mesher, arms, other, room = k
         beside = f" beside {other}" if other else ""
-        lines.append(f"  {method} {robot} {mesher}, {arms} arm(s){beside}, room {room}: "
-                     f"{fmt_mm(add_mm(b[k], 'primary_add_mm'))} mm {b[k]['status']}, {b[k]['arms_found']} found"
-                     f" -> {fmt_mm(add_mm(a[k], 'primary_add_mm'))} mm {a[k]['status']}, {a[k]['arms_found']} found")
-    if len(moved) > listed:
-        lines.append(f"  ... and {len(moved) - listed} more (--list)")
-    return lines
+        side = lambda r: f"{fmt_number(add_mm(r, 'primary_add_mm'))} mm {r['status']}, {r['arms_found']} found"
+        return f"  {method} {robot} {mesher}, {arms} arm(s){beside}, room {room}: {side(b[k])} -> {side(a[k])}"
+    return lines + listing(moved, listed, line_of)
 
 
 def compare(before_dir, after_dir, listed=40):
@@ -187,7 +188,11 @@ def main(argv=None):
     args = parser.parse_args(argv)
     try:
         print("\n".join(compare(args.before, args.after, args.list)))
-    except (CompareError, KeyError, ValueError) as e:
+    except KeyError as e:
+        print(f"compare-bench: a bench CSV lacks the column {e}: is it from another version of arref bench?",
+              file=sys.stderr)
+        return 2
+    except (CompareError, ValueError) as e:
         print(f"compare-bench: {e}", file=sys.stderr)
         return 2
     return 0

@@ -89,3 +89,12 @@ def test_folders_without_bench_output_are_refused(tmp_path):
         compare_bench.compare(str(empty), str(empty))
     with pytest.raises(compare_bench.CompareError, match="no such folder"):
         compare_bench.compare(str(tmp_path / "missing"), str(empty))
+
+
+def test_a_csv_from_another_bench_is_refused_by_name(tmp_path, capsys):
+    columns = [c for c in ROOM_COLUMNS if c != "arms_found"]
+    rows = [{c: v for c, v in room(0, 1, 5.0, "OK", 1).items() if c != "arms_found"}]
+    before = write(tmp_path / "a", "auto_runs.csv", columns, rows)
+    after = write(tmp_path / "b", "auto_runs.csv", columns, rows)
+    assert compare_bench.main([before, after]) == 2
+    assert "lacks the column 'arms_found'" in capsys.readouterr().err

@@ -75,9 +75,14 @@ def summarise(rows):
             "median": statistics.median(finite) if finite else math.nan}
 
 
-def pair_runs(before, after, name):
-    b = {run_key(r): r for r in before}
-    a = {run_key(r): r for r in after}
+def room_key(row):
+    return (row["method"], row["robot"], row["mesher"], row["arms"], row.get("other", ""), row["room"])
+
+
+def pair_runs(before, after, name, key=run_key):
+    """The two folders' runs (or rooms), matched by their labels: (before, after) pairs."""
+    b = {key(r): r for r in before}
+    a = {key(r): r for r in after}
     if len(b) != len(before) or len(a) != len(after):
         raise CompareError(f"{name}: two runs share the same labels; these are not one bench's runs")
     if b.keys() != a.keys():
@@ -138,25 +143,22 @@ def room_counts(rows):
 
 
 def compare_rooms(before, after, listed):
-    key = lambda r: (r["method"], r["robot"], r["mesher"], r["arms"], r.get("other", ""), r["room"])
-    b, a = {key(r): r for r in before}, {key(r): r for r in after}
-    if b.keys() != a.keys():
-        raise CompareError("auto_runs.csv: the folders hold different rooms: compare two runs of the same bench command")
+    pairs = pair_runs(before, after, "auto_runs.csv", room_key)
     lines = ["auto_runs.csv: method | arm within 10 mm | within 20 mm | both arms found | wrong OK | empty FAILED | ms median"]
-    for method in sorted({k[0] for k in b}):
-        cb = room_counts([r for k, r in b.items() if k[0] == method])
-        ca = room_counts([r for k, r in a.items() if k[0] == method])
+    for method in sorted({b["method"] for b, _ in pairs}):
+        cb = room_counts([b for b, _ in pairs if b["method"] == method])
+        ca = room_counts([a for b, a in pairs if b["method"] == method])
         lines.append(f"{method} | {cb['10mm']} -> {ca['10mm']} of {cb['rooms']} | {cb['20mm']} -> {ca['20mm']} | "
                      f"{cb['both']} -> {ca['both']} of {cb['two']} | {cb['wrong_ok']} -> {ca['wrong_ok']} | "
                      f"{cb['failed']} -> {ca['failed']} of {cb['empty']} | {fmt_number(cb['ms'])} -> {fmt_number(ca['ms'])}")
-    moved = [k for k in b if b[k]["arms_found"] != a[k]["arms_found"] or changed(b[k], a[k], "primary_add_mm")]
-    lines.append(f"rooms whose outcome changed: {len(moved)} of {len(b)}")
+    moved = [(b, a) for b, a in pairs if b["arms_found"] != a["arms_found"] or changed(b, a, "primary_add_mm")]
+    lines.append(f"rooms whose outcome changed: {len(moved)} of {len(pairs)}")
 
-    def line_of(k):
-        method, robot, mesher, arms, other, room = k
+    def line_of(pair):
+        method, robot, mesher, arms, other, room = room_key(pair[0])
         beside = f" beside {other}" if other else ""
         side = lambda r: f"{fmt_number(add_mm(r, 'primary_add_mm'))} mm {r['status']}, {r['arms_found']} found"
-        return f"  {method} {robot} {mesher}, {arms} arm(s){beside}, room {room}: {side(b[k])} -> {side(a[k])}"
+        return f"  {method} {robot} {mesher}, {arms} arm(s){beside}, room {room}: {side(pair[0])} -> {side(pair[1])}"
     return lines + listing(moved, listed, line_of)
 
 

@@ -149,8 +149,6 @@ ModelView ModelCaster::Render(const DepthIntrinsics& camera, const Iso3& T_base_
   const Vec3 origin = T_base_camera.translation();
   std::vector<Vec3f> hit_points(view.z_depth.size()), hit_normals(view.z_depth.size());
   tbb::parallel_for(gv0, gv1, [&](int gv) {
-    // A ray's length in the camera frame (its z is 1) turns a hit's distance into its z depth.
-    const auto ray_length = [&](int gu) { return camera.Ray(gu * stride, gv * stride).norm(); };
     TraceRow(
         impl_->top, origin, max_range_m, gu0, gu1,
         [&](int gu, Vec3* dir) {
@@ -161,7 +159,8 @@ ModelView ModelCaster::Render(const DepthIntrinsics& camera, const Iso3& T_base_
         [&](int gu, const Vec3& dir, float distance, const Vec3& normal, unsigned instance) {
           if (instance == RTC_INVALID_GEOMETRY_ID) return;
           const std::size_t cell = static_cast<std::size_t>(gv) * gw + gu;
-          view.z_depth[cell] = static_cast<float>(distance / ray_length(gu));
+          // The hit's z depth: its distance along the unit ray, projected on the camera's axis.
+          view.z_depth[cell] = static_cast<float>(distance * dir.dot(R.col(2)));
           // Embree gives an instance hit's normal in the link's own frame.
           Vec3 n = impl_->links[instance].T_base_link.linear() * normal.normalized();
           if (n.dot(dir) > 0) n = -n;  // facing the camera

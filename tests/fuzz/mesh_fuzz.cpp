@@ -2,8 +2,6 @@
 // checks) from arbitrary bytes. Byte 0 picks the format (STL, PLY or OBJ, as the file's
 // extension says); the rest is the file, written to a private temporary folder because
 // LoadMeshFile reads by path, exactly as a URDF's meshes are read.
-#include <unistd.h>
-
 #include <cstddef>
 #include <cstdint>
 #include <cstdlib>
@@ -12,18 +10,15 @@
 #include <string>
 
 #include "arref/robot/robot_model.h"
+#include "scratch_folder.h"
 
 namespace {
 
 namespace fs = std::filesystem;
 
 const fs::path& Folder() {
-  static const fs::path dir = [] {
-    const fs::path d = fs::temp_directory_path() / ("arref-fuzz-mesh-" + std::to_string(getpid()));
-    fs::create_directories(d);
-    return d;
-  }();
-  return dir;
+  static const arref::fuzz::ScratchFolder folder("arref-fuzz-mesh-");
+  return folder.path();
 }
 
 }  // namespace

@@ -2,8 +2,6 @@
 // primitive and mesh geometry), then what the server does with a loaded robot: its actuated
 // joints, completing a joint state, forward kinematics and the posed mesh. Mesh references
 // resolve against a folder holding one small mesh of each format (mesh_fuzz covers the bytes).
-#include <unistd.h>
-
 #include <cstddef>
 #include <cstdint>
 #include <filesystem>
@@ -14,6 +12,7 @@
 #include <spdlog/spdlog.h>
 
 #include "arref/robot/robot_model.h"
+#include "scratch_folder.h"
 
 namespace {
 
@@ -21,8 +20,8 @@ namespace fs = std::filesystem;
 
 // A tetrahedron as the three formats a URDF may name ("t.stl", "t.obj", "t.ply").
 std::string MeshFolder() {
-  const fs::path dir = fs::temp_directory_path() / ("arref-fuzz-urdf-" + std::to_string(getpid()));
-  fs::create_directories(dir);
+  static const arref::fuzz::ScratchFolder folder("arref-fuzz-urdf-");
+  const fs::path& dir = folder.path();
   std::ofstream(dir / "t.obj") << "v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n";
   std::ofstream(dir / "t.ply") << "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
                                   "property float z\nelement face 4\nproperty list uchar int vertex_indices\n"

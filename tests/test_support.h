@@ -44,6 +44,8 @@ inline bool HaveShared() { return std::filesystem::exists(Kr5PackageDir() + "/ur
 #include <sys/wait.h>
 #include <unistd.h>
 
+#include "temp_folder.h"
+
 namespace arref::testing {
 
 // A directory of the running test's own, removed with what is in it when this goes: CTest runs
@@ -51,26 +53,20 @@ namespace arref::testing {
 // fixed path would be written by two at once.
 class ScopedTempDir {
  public:
-  ScopedTempDir() {
+  ScopedTempDir() : folder_(::testing::TempDir(), "arref_" + TestName() + "_") {
+    if (folder_.path().empty()) ADD_FAILURE() << "cannot create a directory in " << ::testing::TempDir();
+  }
+  const std::string& path() const { return folder_.path(); }
+
+ private:
+  static std::string TestName() {
     const ::testing::TestInfo* test = ::testing::UnitTest::GetInstance()->current_test_info();
     std::string name = test ? std::string(test->test_suite_name()) + "." + test->name() : "test";
     for (char& c : name)
       if (!std::isalnum(static_cast<unsigned char>(c)) && c != '.') c = '_';  // parameterised names have '/'
-    std::string pattern = ::testing::TempDir() + "/arref_" + name + "_XXXXXX";
-    if (mkdtemp(pattern.data()) == nullptr) ADD_FAILURE() << "cannot create a directory like " << pattern;
-    path_ = pattern;
+    return name;
   }
-  ~ScopedTempDir() {
-    std::error_code ignored;  // a test that failed half-way may have left anything
-    std::filesystem::remove_all(path_, ignored);
-  }
-  ScopedTempDir(const ScopedTempDir&) = delete;
-  ScopedTempDir& operator=(const ScopedTempDir&) = delete;
-
-  const std::string& path() const { return path_; }
-
- private:
-  std::string path_;
+  TempFolder folder_;
 };
 
 struct CommandResult {

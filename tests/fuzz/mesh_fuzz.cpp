@@ -10,14 +10,15 @@
 #include <string>
 
 #include "arref/robot/robot_model.h"
-#include "scratch_folder.h"
+#include "../temp_folder.h"
 
 namespace {
 
 namespace fs = std::filesystem;
 
-const fs::path& Folder() {
-  static const arref::fuzz::ScratchFolder folder("arref-fuzz-mesh-");
+const std::string& Folder() {
+  static const arref::testing::TempFolder folder(fs::temp_directory_path().string(), "arref-fuzz-mesh-");
+  if (folder.path().empty()) std::abort();  // nowhere to write the inputs
   return folder.path();
 }
 
@@ -26,7 +27,7 @@ const fs::path& Folder() {
 extern "C" int LLVMFuzzerTestOneInput(const std::uint8_t* data, std::size_t size) {
   if (size < 1) return 0;
   static const char* const kExtensions[] = {".stl", ".ply", ".obj"};
-  const fs::path path = Folder() / (std::string("m") + kExtensions[data[0] % 3]);
+  const fs::path path = fs::path(Folder()) / (std::string("m") + kExtensions[data[0] % 3]);
   {
     std::ofstream out(path, std::ios::binary | std::ios::trunc);
     out.write(reinterpret_cast<const char*>(data + 1), static_cast<std::streamsize>(size - 1));

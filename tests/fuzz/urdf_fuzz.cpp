@@ -4,6 +4,7 @@
 // resolve against a folder holding one small mesh of each format (mesh_fuzz covers the bytes).
 #include <cstddef>
 #include <cstdint>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <string>
@@ -12,7 +13,7 @@
 #include <spdlog/spdlog.h>
 
 #include "arref/robot/robot_model.h"
-#include "scratch_folder.h"
+#include "../temp_folder.h"
 
 namespace {
 
@@ -20,8 +21,9 @@ namespace fs = std::filesystem;
 
 // A tetrahedron as the three formats a URDF may name ("t.stl", "t.obj", "t.ply").
 std::string MeshFolder() {
-  static const arref::fuzz::ScratchFolder folder("arref-fuzz-urdf-");
-  const fs::path& dir = folder.path();
+  static const arref::testing::TempFolder folder(fs::temp_directory_path().string(), "arref-fuzz-urdf-");
+  if (folder.path().empty()) std::abort();  // nowhere to write the inputs
+  const fs::path dir = folder.path();
   std::ofstream(dir / "t.obj") << "v 0 0 0\nv 0.1 0 0\nv 0 0.1 0\nv 0 0 0.1\nf 1 3 2\nf 1 2 4\nf 1 4 3\nf 2 3 4\n";
   std::ofstream(dir / "t.ply") << "ply\nformat ascii 1.0\nelement vertex 4\nproperty float x\nproperty float y\n"
                                   "property float z\nelement face 4\nproperty list uchar int vertex_indices\n"

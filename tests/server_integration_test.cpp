@@ -201,6 +201,7 @@ TEST(ServerIntegration, AServerDiesWithTheTestProcessThatStartedIt) {
   close(fds[0]);
   int status = 0;
   waitpid(test, &status, 0);
+  ServerProcess::RemoveFilesOf(test);  // what the stand-in's destructor would have removed
   ASSERT_TRUE(read_pid && server > 0) << "the stand-in test did not start its server";
   // Gone, or a zombie no one has reaped yet (in a container without an init that reaps).
   auto running = [&] {

@@ -56,9 +56,9 @@ class ServerProcess {
  public:
   explicit ServerProcess(const ServerSettings& settings = {}) {
     static int counter = 0;
-    const std::string tag = std::to_string(getpid()) + "_" + std::to_string(counter++);
-    config_path_ = (std::filesystem::temp_directory_path() / ("arref_server_test_" + tag + ".yaml")).string();
-    log_path_ = (std::filesystem::temp_directory_path() / ("arref_server_test_" + tag + ".log")).string();
+    const std::string tag = FilePrefix(getpid()) + std::to_string(counter++);
+    config_path_ = (std::filesystem::temp_directory_path() / (tag + ".yaml")).string();
+    log_path_ = (std::filesystem::temp_directory_path() / (tag + ".log")).string();
     std::ofstream(config_path_) << ConfigYaml(settings);
     Spawn();
   }
@@ -70,6 +70,15 @@ class ServerProcess {
     if (stdout_fd_ >= 0) close(stdout_fd_);
     std::filesystem::remove(config_path_);
     std::filesystem::remove(log_path_);
+  }
+
+  // The config and log files of every server `process` started: for a test process that died
+  // without running destructors, so that its files do not pile up in the temp dir.
+  static void RemoveFilesOf(pid_t process) {
+    const std::string prefix = FilePrefix(process);
+    std::error_code ignored;
+    for (const auto& entry : std::filesystem::directory_iterator(std::filesystem::temp_directory_path(), ignored))
+      if (entry.path().filename().string().starts_with(prefix)) std::filesystem::remove(entry.path(), ignored);
   }
 
   std::uint16_t port() const { return port_; }
@@ -103,6 +112,8 @@ class ServerProcess {
   }
 
  private:
+  static std::string FilePrefix(pid_t process) { return "arref_server_test_" + std::to_string(process) + "_"; }
+
   // fork + exec rather than posix_spawn, so that the child can ask for SIGKILL when the test
   // process dies (PR_SET_PDEATHSIG): a test that aborts (a sanitizer's halt_on_error, a crash)
   // runs no destructor, and its server would otherwise live on. Between fork and exec the child

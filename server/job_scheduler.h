@@ -27,6 +27,7 @@
 #include "arref/base/geometry.h"
 #include "arref/pipeline/pipeline.h"
 #include "arref/pipeline/seedless.h"
+#include "arref/robot/joint_motion.h"
 #include "arref/robot/robot_model.h"
 #include "arref/base/status.h"
 #include "memory_budget.h"
@@ -41,6 +42,10 @@ struct JobOutcome {
   Status status;                             // why there is no report (kCancelled when cancelled)
   double queue_ms = 0.0;
   double run_ms = 0.0;
+  // The joints moved while the map was made: what the fit rested on (ChooseMovingFit), for the
+  // Result's message, and the links it rested on when not the whole model.
+  std::string moving_fit_note;
+  std::vector<std::string> fitted_links;
 };
 
 struct Job {
@@ -48,6 +53,8 @@ struct Job {
   std::uint64_t request_id = 0;
   std::string robot_id;
   JointValues joints;          // complete and validated
+  // Each joint's range over the joint states the session sent while it mapped (ChooseMovingFit).
+  JointRanges joints_while_mapping;
   std::shared_ptr<const TriangleMesh> scene_world;  // the session's map when the request came (shared, not copied)
   Iso3 T_world_seed = Iso3::Identity();
   bool seedless = false;       // no seed: the whole map is searched (RegisterWholeMap)

@@ -1,5 +1,7 @@
 #include "replay.h"
 
+#include "mapping_motion.h"
+
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
@@ -153,6 +155,8 @@ class OfflineSession {
       answer = wire::ErrorMessage(outcome.error, outcome.message);
     else if (outcome.keep)
       answer = Answer(FeedJointStream(m, outcome.complete, tracking_, sink_->id()));
+    if (outcome.keep && outcome.joints.rejected.empty() && spatial_.size() > 0)
+      mapping_motion_.Add(m.robot_id(), outcome.joints.values);  // as the live session records it
     if (outcome.keep) joints_[m.robot_id()] = std::move(outcome.joints);
     return answer;
   }
@@ -167,6 +171,7 @@ class OfflineSession {
     Job& j = **job;
     j.session_id = header_.session_id();
     j.scene_world = spatial_.MergedWorld();
+    j.joints_while_mapping = mapping_motion_.For(j.robot_id);
     j.scene_time_unix_s = header_.start_unix_s() + t_s;  // as the server stamped it, to the recording's precision
     for (const auto& [sid, surface] : spatial_.surfaces())
       j.scene_headset_time_s = std::max(j.scene_headset_time_s, surface.timestamp_s);
@@ -178,6 +183,7 @@ class OfflineSession {
     pb::ServerMessage result = wire::ResultMessage(result_header, outcome.report, outcome.status, j.result_frame);
     if (outcome.seedless)  // as the live session answers it
       wire::FillCandidates(outcome.instances, outcome.primary, j.result_frame, result.mutable_result());
+    AddMappingMotion(j.joints_while_mapping, outcome, result.mutable_result());
     return result;
   }
 
@@ -189,6 +195,7 @@ class OfflineSession {
   SubscriberHub hub_;  // no other sessions offline: nobody subscribes
   TrackingService tracking_;  // declared last: its updates reach the members above
   SpatialMesh spatial_;
+  MappingMotion mapping_motion_;
   std::optional<Iso3> seed_;
   FrameConvention seed_frame_ = FrameConvention::kUnity;
   std::map<std::string, SessionJoints> joints_;

@@ -10,9 +10,12 @@
 namespace arref::server {
 namespace {
 
-std::string CacheKey(const std::string& id, const JointValues& joints, std::size_t samples, std::uint64_t seed) {
+std::string CacheKey(const std::string& id, const JointValues& joints, std::size_t samples, std::uint64_t seed,
+                     const std::set<std::string>* links) {
   std::string key = fmt::format("{}|{}|{}", id, samples, seed);
   for (const auto& [name, value] : joints) key += fmt::format("|{}={:.9g}", name, value);
+  if (links)
+    for (const std::string& link : *links) key += "|link:" + link;
   return key;
 }
 
@@ -59,8 +62,9 @@ Result<JointValues> RobotRegistry::ResolveJoints(const ServedRobot& robot, const
 }
 
 Result<RobotRegistry::ModelCloud> RobotRegistry::Model(const ServedRobot& robot, const JointValues& joints,
-                                                       std::size_t samples, std::uint64_t seed) {
-  const std::string key = CacheKey(robot.config.id, joints, samples, seed);
+                                                       std::size_t samples, std::uint64_t seed,
+                                                       const std::set<std::string>* links) {
+  const std::string key = CacheKey(robot.config.id, joints, samples, seed, links);
   std::promise<Result<ModelCloud>> promise;
   Entry entry;
   {
@@ -75,7 +79,7 @@ Result<RobotRegistry::ModelCloud> RobotRegistry::Model(const ServedRobot& robot,
     }
   }
   if (entry.valid()) return entry.get();  // may wait for the thread that samples it
-  auto side = RobotSide::Create(robot.model, joints, samples, seed);
+  auto side = RobotSide::Create(robot.model, joints, samples, seed, links);
   Result<ModelCloud> result = side.ok() ? Result<ModelCloud>(std::move(*side))
                                         : Result<ModelCloud>(side.status());
   promise.set_value(result);

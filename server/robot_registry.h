@@ -9,6 +9,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -40,8 +41,9 @@ class RobotRegistry {
 
   using ModelCloud = std::shared_ptr<const RobotSide>;
   // Sampled once per key; concurrent callers with the same key wait for the first.
+  // links: only these links' geometry (ChooseMovingFit); null: every link.
   Result<ModelCloud> Model(const ServedRobot& robot, const JointValues& joints, std::size_t samples,
-                           std::uint64_t seed);
+                           std::uint64_t seed, const std::set<std::string>* links = nullptr);
 
  private:
   using Entry = std::shared_future<Result<ModelCloud>>;

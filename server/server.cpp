@@ -1,6 +1,7 @@
 #include "server.h"
 
 #include <fmt/format.h>
+#include <fmt/ranges.h>
 #include <spdlog/spdlog.h>
 
 #include <atomic>
@@ -12,6 +13,8 @@
 #include <thread>
 
 #include "arref/base/clock.h"
+#include "arref/fusion/model_reconstruction.h"
+#include "arref/robot/joint_motion.h"
 #include "registration_job.h"
 #include "robot_registry.h"
 #include "session.h"
@@ -24,6 +27,36 @@ constexpr auto kCancelGrace = std::chrono::seconds(10);   // after cancelling ov
 constexpr auto kFlushGrace = std::chrono::seconds(5);     // for sessions to send their last bytes
 
 Status CancelledWhileRunning() { return Status::Cancelled("cancelled while running"); }
+
+// When the joints moved while the map was made, the links the fit rests on (ChooseMovingFit,
+// against the map's resolution) and what the Result says about it. Null: every link.
+Result<std::optional<std::set<std::string>>> MovingFitLinks(const Job& job, const ServedRobot& robot, JobOutcome* out) {
+  bool moved = false;
+  for (const auto& [name, range] : job.joints_while_mapping) moved = moved || range.second - range.first > kJointMotionWhileMappingRad;
+  if (!moved) return std::optional<std::set<std::string>>();
+  const double voxel = MedianEdgeLength(*job.scene_world);
+  ARREF_ASSIGN_OR_RETURN(const MovingFit fit, ChooseMovingFit(robot.model, job.joints, job.joints_while_mapping,
+                                                              kJointMotionWhileMappingRad, voxel, kMovingFitMinLeverageVoxels,
+                                                              kMovingFitMinMovedShare));
+  const std::string names = fmt::format("{}", fmt::join(fit.unmoved, ", "));
+  if (fit.links) {
+    out->fitted_links.assign(fit.links->begin(), fit.links->end());
+    out->moving_fit_note = fmt::format("the fit rests on the links that did not move ({})", names);
+  } else if (fit.unmoved.empty()) {
+    out->moving_fit_note = "every link moved: the fit rests on the whole model, smeared mesh and all";
+  } else if (1.0 - fit.unmoved_area_share < kMovingFitMinMovedShare) {
+    out->moving_fit_note = fmt::format("the moving links hold only {:.0f} % of the robot's surface: the fit rests on "
+                                       "the whole model", 100 * (1.0 - fit.unmoved_area_share));
+  } else {
+    out->moving_fit_note = fmt::format(
+        "the links that did not move ({}) cannot fix the heading on a mesh of {:.0f} mm edges (their moment arm about the "
+        "base's axis is {:.0f} mm): the fit rests on the whole model, smeared mesh and all",
+        names, voxel * 1000, fit.yaw_leverage_m * 1000);
+  }
+  spdlog::info("session {}: request {}: the joints moved while mapping; {}", job.session_id, job.request_id,
+               out->moving_fit_note);
+  return fit.links;
+}
 
 }  // namespace
 
@@ -39,7 +72,10 @@ JobOutcome RunRegistrationJob(Job& job, RobotRegistry& robots) {
   if (Cancelled(&job.cancel)) return finish(CancelledWhileRunning());
   if (job.on_progress) job.on_progress("model", 0.0);
   const ServedRobot* robot = robots.Find(job.robot_id);
-  auto model = robots.Model(*robot, job.joints, job.options.model_samples, job.options.sample_seed);
+  auto links = MovingFitLinks(job, *robot, &out);
+  if (!links.ok()) return finish(links.status().WithContext("the links that did not move while mapping"));
+  auto model = robots.Model(*robot, job.joints, job.options.model_samples, job.options.sample_seed,
+                            *links ? &**links : nullptr);
   if (!model.ok()) return finish(model.status().WithContext("robot model"));
   if (Cancelled(&job.cancel)) return finish(CancelledWhileRunning());
   const ProgressFn progress = [&job](std::string_view stage, double fraction) {

@@ -20,7 +20,6 @@ namespace {
 namespace pb = wire::pb;
 
 constexpr std::size_t kReadChunk = 64 * 1024;
-constexpr double kJointMotionWhileMappingRad = 0.02;  // a joint moving more smears the arm's mesh
 constexpr auto kLinger = std::chrono::seconds(2);  // time to flush a final error before closing
 // Time to send TLS close_notify once the replies are out (kLinger + this < the server's
 // kFlushGrace at shutdown).
@@ -435,23 +434,9 @@ void Session::OnJointState(const pb::JointState& m) {
   if (outcome.joints.rejected.empty()) {
     if (auto refused = FeedJointStream(m, outcome.complete, ctx_.tracking, id_))
       SendError(refused->code, refused->message);
-    if (spatial_.size() > 0)
-      for (const auto& [name, value] : joints) {
-        auto [it, fresh] = joint_range_[m.robot_id()].try_emplace(name, value, value);
-        if (!fresh) it->second = {std::min(it->second.first, value), std::max(it->second.second, value)};
-      }
+    if (spatial_.size() > 0) mapping_motion_.Add(m.robot_id(), joints);
   }
   joints_[m.robot_id()] = std::move(outcome.joints);
-}
-
-double Session::JointMotionWhileMapping(const std::string& robot_id) const {
-  double most = 0.0;
-  for (const std::string& id : {robot_id, std::string()}) {
-    const auto it = joint_range_.find(id);
-    if (it == joint_range_.end()) continue;
-    for (const auto& [name, range] : it->second) most = std::max(most, range.second - range.first);
-  }
-  return most;
 }
 
 void Session::OnTrackRequest(const pb::TrackRequest& m) {
@@ -573,6 +558,7 @@ std::shared_ptr<Job> Session::MakeJob(const pb::RegisterRequest& m) {
   (*job)->memory = std::move(*memory);
   (*job)->session_id = id_;
   (*job)->scene_world = spatial_.MergedWorld();
+  (*job)->joints_while_mapping = mapping_motion_.For((*job)->robot_id);
   (*job)->scene_time_unix_s =
       std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
   for (const auto& [sid, surface] : spatial_.surfaces())
@@ -603,8 +589,7 @@ void Session::AttachCallbacks(Job& job) {
     message.mutable_progress()->set_fraction(fraction);
     self->SendFrame(wire::SharedFrame(message));
   };
-  const double joint_motion = JointMotionWhileMapping(job.robot_id);
-  job.on_done = [weak, hub, joint_motion](const Job& done, const JobOutcome& outcome) {
+  job.on_done = [weak, hub](const Job& done, const JobOutcome& outcome) {
     const wire::ResultHeader header{.request_id = done.request_id,
                                     .robot_id = done.robot_id,
                                     .session_id = done.session_id,
@@ -615,15 +600,7 @@ void Session::AttachCallbacks(Job& job) {
     pb::ServerMessage message = wire::ResultMessage(header, outcome.report, outcome.status, done.result_frame);
     if (outcome.seedless)
       wire::FillCandidates(outcome.instances, outcome.primary, done.result_frame, message.mutable_result());
-    if (joint_motion > kJointMotionWhileMappingRad) {
-      pb::Result* r = message.mutable_result();
-      r->set_joints_moved_while_mapping(true);
-      r->set_joint_motion_rad(joint_motion);
-      r->set_message(r->message() + (r->message().empty() ? "" : "; ") +
-                     fmt::format("the joints moved by up to {} rad while the map was made: the arm's mesh is "
-                                 "smeared (TrackRequest with depth frames follows a moving robot)",
-                                 std::round(joint_motion * 100) / 100));  // {:.2f} would print every digit of 1e300
-    }
+    AddMappingMotion(done.joints_while_mapping, outcome, message.mutable_result());
     const auto frame = wire::SharedFrame(message);
     spdlog::info("session {}: request {} {} ({:.0f} ms queued, {:.0f} ms running){}", done.session_id, done.request_id,
                  outcome.report ? "done" : outcome.status.ToString(), outcome.queue_ms, outcome.run_ms,

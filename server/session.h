@@ -25,6 +25,7 @@
 #include "arref/base/clock.h"
 #include "frame_decoder.h"
 #include "job_scheduler.h"
+#include "mapping_motion.h"
 #include "memory_budget.h"
 #include "recording.h"
 #include "request_builder.h"
@@ -176,9 +177,7 @@ class Session : public TrackingSink, public std::enable_shared_from_this<Session
   std::optional<Iso3> seed_;
   FrameConvention seed_frame_ = FrameConvention::kUnity;
   std::map<std::string, SessionJoints> joints_;  // latest JointState by robot id; "" applies to every robot
-  // Per robot id, each joint's lowest and highest value sent since the first surface arrived.
-  std::map<std::string, std::map<std::string, std::pair<double, double>>> joint_range_;
-  double JointMotionWhileMapping(const std::string& robot_id) const;
+  MappingMotion mapping_motion_;  // each joint's range over the states sent since the first surface
   std::set<std::uint64_t> in_flight_;
   bool shutdown_notified_ = false;
 

@@ -3,6 +3,7 @@
 #include <filesystem>
 #include <fstream>
 
+#include "arref/robot/joint_motion.h"
 #include "arref/robot/robot_model.h"
 #include "test_support.h"
 
@@ -382,6 +383,61 @@ TEST(Kr5Package, CollisionGeometryOnRequest) {
   const Aabb box = BoundsOf(robot.LinkMesh("link_2")->vertices);
   EXPECT_NEAR(box.max.x(), 0.668, 2e-3);
   EXPECT_NEAR(box.min.z(), -0.310, 2e-3);
+}
+
+// The links a joint motion leaves in place come from the kinematics: a prismatic joint carries
+// its child and the child's children; a fixed link on the base stays.
+TEST(JointMotion, UnmovedLinksAreThoseNoMovingJointCarries) {
+  const testing::ScopedTempDir tmp;
+  const RobotModel robot = LoadOrDie(WriteTestUrdf(tmp.path()));
+  using Links = std::set<std::string>;
+  ASSERT_OK_AND_ASSIGN(const Links slid, UnmovedLinks(robot, {}, {{"slide", {-0.2, 0.3}}}, 0.02));
+  EXPECT_EQ(slid, (Links{"base", "scaled"}));
+  ASSERT_OK_AND_ASSIGN(const Links spun, UnmovedLinks(robot, {{"slide", 0.5}}, {{"spin", {0.0, 1.0}}}, 0.02));
+  EXPECT_EQ(spun, (Links{"base", "scaled", "slider"}));
+  ASSERT_OK_AND_ASSIGN(const Links still, UnmovedLinks(robot, {}, {{"slide", {0.1, 0.11}}}, 0.02));
+  EXPECT_EQ(still.size(), robot.GeometryLinks().size()) << "a range under min_range moves nothing";
+  const auto unknown = UnmovedLinks(robot, {}, {{"follow", {0.0, 1.0}}}, 0.02);
+  ASSERT_FALSE(unknown.ok()) << "a mimic joint is not set by itself";
+  EXPECT_NE(unknown.status().message().find("'follow'"), std::string::npos) << unknown.status().message();
+}
+
+TEST(JointMotion, PosedMeshOfSomeLinksAndAClearErrorForAnUnknownOne) {
+  const RobotModel robot = LoadOrDie(testing::BuiltinRobotUrdf());
+  ASSERT_OK_AND_ASSIGN(const TriangleMesh whole, robot.PosedMesh({}));
+  ASSERT_OK_AND_ASSIGN(const TriangleMesh base, robot.PosedMesh({}, {"base_link"}));
+  EXPECT_NEAR(base.SurfaceArea(), robot.LinkMesh("base_link")->SurfaceArea(), 1e-6);
+  EXPECT_LT(base.SurfaceArea(), whole.SurfaceArea());
+  const auto bad = robot.PosedMesh({}, {"base_link", "no_such_link"});
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.status().message().find("'no_such_link'"), std::string::npos) << bad.status().message();
+}
+
+// The fit leaves the moving links out only when they are a large part of the robot and what
+// stood still fixes the heading on the mesh's resolution (joint_motion.h).
+TEST(JointMotion, ChooseMovingFitNeedsMuchMovedAndAFirmHeadingFromWhatStoodStill) {
+  const RobotModel robot = LoadOrDie(testing::BuiltinRobotUrdf());
+  const JointValues at = {{"joint_a2", -0.5}, {"joint_a3", 0.4}};
+  auto choose = [&](const std::vector<std::string>& moving, double voxel_m) {
+    JointRanges ranges;
+    for (const std::string& j : moving) ranges[j] = {-0.3, 0.3};
+    return ChooseMovingFit(robot, at, ranges, kJointMotionWhileMappingRad, voxel_m, kMovingFitMinLeverageVoxels,
+                           kMovingFitMinMovedShare);
+  };
+  const std::vector<std::string> arm = {"joint_a2", "joint_a3", "joint_a4", "joint_a5", "joint_a6"};
+  ASSERT_OK_AND_ASSIGN(const MovingFit fine, choose(arm, 0.03));
+  ASSERT_TRUE(fine.links.has_value()) << "leverage " << fine.yaw_leverage_m;
+  EXPECT_EQ(*fine.links, (std::set<std::string>{"base_link", "link_1"}));
+  EXPECT_GT(fine.unmoved_area_share, 0.2);
+  EXPECT_LT(fine.unmoved_area_share, 2.0 / 3.0);
+  ASSERT_OK_AND_ASSIGN(const MovingFit coarse, choose(arm, 0.06));
+  EXPECT_FALSE(coarse.links.has_value()) << "a 6 cm mesh: the turret's " << coarse.yaw_leverage_m << " m lever is under two edges";
+  EXPECT_EQ(coarse.unmoved, fine.unmoved);
+  ASSERT_OK_AND_ASSIGN(const MovingFit wrist, choose({"joint_a4", "joint_a5", "joint_a6"}, 0.01));
+  EXPECT_FALSE(wrist.links.has_value()) << "the wrist is under a third of the surface: " << wrist.unmoved_area_share;
+  ASSERT_OK_AND_ASSIGN(const MovingFit none, choose({}, 0.03));
+  EXPECT_FALSE(none.links.has_value());
+  EXPECT_EQ(none.unmoved.size(), robot.GeometryLinks().size());
 }
 
 }  // namespace

@@ -29,6 +29,9 @@
 #include <thread>
 #include <vector>
 
+#include "arref/fusion/model_reconstruction.h"
+#include "arref/robot/joint_motion.h"
+#include "arref/robot/robot_model.h"
 #include "arref/scene/metrics.h"
 #include "arref/sim/room_simulator.h"
 #include "frame_decoder.h"
@@ -1246,28 +1249,55 @@ TEST(ServerIntegration, TrackingErrorsAreClearAndKeepTheSession) {
   EXPECT_LE(pong.pong().receive_time_s(), pong.pong().server_time_s());
 }
 
-// Joints that move while the map is made smear the arm's mesh: the one-shot result says so.
-TEST(ServerIntegration, ResultSaysWhenTheJointsMovedWhileMapping) {
+// Joints that move while the map is made smear the arm's mesh: the one-shot result says so, and
+// rests on the links that stood still when they fix the heading on this map's resolution
+// (ChooseMovingFit: a moving first joint leaves only the base, a moving second joint the turret
+// too); such a fit is never OK.
+TEST(ServerIntegration, ResultSaysWhenTheJointsMovedWhileMappingAndWhatTheFitRestedOn) {
   ServerProcess server;
   const HeadsetScene scene = Scene(1);
-  for (const double moved : {0.0, 0.3}) {
+  TriangleMesh map;
+  for (const Surface& s : scene.surfaces) map.Append(s.mesh, s.T_world_surface);
+  ASSERT_OK_AND_ASSIGN(const RobotModel robot, RobotModel::Load(testing::BuiltinRobotUrdf()));
+  for (const auto& [joint, moved] : std::vector<std::pair<std::string, double>>{
+           {"joint_a1", 0.0}, {"joint_a1", 0.3}, {"joint_a2", 0.3}}) {
+    SCOPED_TRACE(joint + " moved by " + std::to_string(moved));
     ScriptedHeadset h(server);
     ASSERT_TRUE(h.Hello().has_hello_reply());
     h.Upload(scene);
     for (const double q : {0.1, 0.1 + moved}) {
       pb::ClientMessage j;
       j.mutable_joint_state()->set_robot_id("kr5");
-      j.mutable_joint_state()->add_names("joint_a1");
+      j.mutable_joint_state()->add_names(joint);
       j.mutable_joint_state()->add_positions(q);
       h.Send(j);
     }
     h.Seed(scene.seeds[0]);
     h.Request(1);
     const auto r = h.Await([](const pb::ServerMessage& m) { return m.has_result(); });
-    EXPECT_EQ(r.result().joints_moved_while_mapping(), moved > 0) << r.result().message();
-    EXPECT_NEAR(r.result().joint_motion_rad(), moved, 1e-9);
-    if (moved > 0) {
-      EXPECT_NE(r.result().message().find("moved by up to 0.3 rad"), std::string::npos) << r.result().message();
+    const pb::Result& result = r.result();
+    EXPECT_EQ(result.joints_moved_while_mapping(), moved > 0) << result.message();
+    EXPECT_NEAR(result.joint_motion_rad(), moved, 1e-9);
+    if (moved == 0) {
+      EXPECT_EQ(result.fitted_links_size(), 0);
+      continue;
+    }
+    EXPECT_NE(result.message().find("moved by up to 0.3 rad"), std::string::npos) << result.message();
+    ASSERT_OK_AND_ASSIGN(const MovingFit rule,
+                         ChooseMovingFit(robot, {{joint, 0.1 + moved}}, {{joint, {0.1, 0.1 + moved}}},
+                                         kJointMotionWhileMappingRad, MedianEdgeLength(map), kMovingFitMinLeverageVoxels,
+                                         kMovingFitMinMovedShare));
+    const std::set<std::string> fitted(result.fitted_links().begin(), result.fitted_links().end());
+    EXPECT_EQ(fitted, rule.links.value_or(std::set<std::string>{})) << result.message();
+    if (joint == "joint_a2") {
+      EXPECT_TRUE(rule.unmoved.contains("link_1")) << "the turret stands still when joint_a2 moves";
+    }
+    RecordProperty(joint + "_fitted_links", static_cast<int>(fitted.size()));
+    if (rule.links) {
+      EXPECT_NE(result.message().find("the fit rests on the links that did not move"), std::string::npos) << result.message();
+      EXPECT_NE(result.status(), pb::RESULT_STATUS_OK) << result.message();
+    } else {
+      EXPECT_NE(result.message().find("the fit rests on the whole model"), std::string::npos) << result.message();
     }
   }
 }

@@ -181,6 +181,41 @@ TEST(CellSimulator, FusedMeshLiesOnTheTruthAndFacesFreeSpace) {
   EXPECT_GT(static_cast<double>(agree) / total, 0.9) << agree << " of " << total;
 }
 
+// A robot that works while the user maps it: the map holds its arm where it passed (surface
+// away from where it stands at the end), and the cell reports each moving joint's range, as a
+// joint state stream would.
+TEST(CellSimulator, AMovingArmSmearsTheMapAndItsJointRangesAreReported) {
+  SimOptions moving = SmallOptions();
+  moving.cell.motion = MappingMotion{.joints = {"joint_a2", "joint_a3"}, .amplitude_rad = 0.4, .cycles = 1.5};
+  ASSERT_OK_AND_ASSIGN(const SimulatedCell smeared, SimulateCell(BuiltinRobot(), moving, 1));
+  const SimulatedCell& still = SmallCell();
+  EXPECT_TRUE(still.joints_while_mapping.empty());
+  ASSERT_EQ(smeared.joints_while_mapping.size(), 2u);
+  for (const auto& [joint, range] : smeared.joints_while_mapping) {
+    const double final_value = smeared.joints.at(joint);
+    EXPECT_LE(range.first, final_value) << joint;
+    EXPECT_GE(range.second, final_value) << joint;
+    EXPECT_GT(range.second - range.first, 0.4) << joint;
+    EXPECT_LE(range.second - range.first, 0.8 + 1e-9) << joint;
+  }
+  EXPECT_TRUE(smeared.T_world_base.isApprox(still.T_world_base)) << "the same cell, only the arm moved";
+  // The arm's final surface as the map holds it: the share of its samples with mapped surface
+  // within a voxel. The moving arm's views put it elsewhere, so less of it is there.
+  ASSERT_OK_AND_ASSIGN(const TriangleMesh arm, BuiltinRobot().PosedMesh(smeared.joints, {"link_2", "link_3", "link_4"}));
+  PointCloud arm_world = SampleSurface(arm, 3000, 1);
+  arm_world.Transform(smeared.T_world_base);
+  auto held = [&](const SimulatedCell& cell) {
+    const PointIndex map(MergedWorld(cell).vertices);
+    const std::vector<double> d = DistancesTo(map, arm_world.points);
+    return static_cast<double>(std::count_if(d.begin(), d.end(), [&](double x) { return x < cell.voxel_m; })) /
+           static_cast<double>(d.size());
+  };
+  const double held_still = held(still), held_moving = held(smeared);
+  RecordProperty("arm_held_still_percent", static_cast<int>(std::lround(100 * held_still)));
+  RecordProperty("arm_held_moving_percent", static_cast<int>(std::lround(100 * held_moving)));
+  EXPECT_LT(held_moving, 0.8 * held_still) << "still " << held_still << ", moving " << held_moving;
+}
+
 // The head-tracking knob: one number for position and orientation (the defaults' pair at
 // 4 mm), and a fused mesh that strays from the truth as it grows.
 // A caster built for one use (per request) sees what the default build sees: the BVH differs,

@@ -46,6 +46,7 @@ struct BenchArgs {
   int robust_cells = 4;
   int robust_seeds = 2;
   std::vector<std::string> robust_without;
+  std::string mapping_motion = "none", moving_fit = "auto";
   std::string auto_methods = "arref-auto,sliding-box-shot,super4pcs,fpfh-ransac";
   int auto_rooms = 2;
   std::vector<int> auto_arms = {0, 1, 2};
@@ -92,6 +93,8 @@ int Run(const BenchArgs& args) {
   rc.methods = *robust_methods, rc.meshers = args.meshers, rc.seed_families = args.seed_families;
   rc.split = args.split, rc.heldout_robot = args.heldout_robot, rc.cells = args.robust_cells, rc.seeds = args.robust_seeds;
   rc.without = args.robust_without;
+  rc.motion = args.mapping_motion;
+  rc.moving_fit = args.moving_fit;
   rc.package_path = args.robot.package_path;
   auto auto_methods = ParseMethodList(args.auto_methods, "--auto-methods");
   if (!auto_methods.ok()) return Fail(auto_methods.status());
@@ -223,6 +226,14 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
                   "Robustness: headset errors to take out of every cell, to measure what each costs (view-jitter, "
                   "surface-errors, depth-noise, patches, quantisation)")
       ->delimiter(',')->check(CLI::IsMember({"view-jitter", "surface-errors", "depth-noise", "patches", "quantisation"}));
+  cmd->add_option("--mapping-motion", args->mapping_motion,
+                  "Robustness: joints that swing while the cell is mapped, so the map smears the arm (none; wrist: the "
+                  "last half of the actuated joints; arm: all but the first; all)")
+      ->check(CLI::IsMember({"none", "wrist", "arm", "all"}))->capture_default_str();
+  cmd->add_option("--moving-fit", args->moving_fit,
+                  "Robustness, with --mapping-motion: what the fit rests on (auto: the product's choice; whole: the "
+                  "whole model at the final joints; unmoved: the links no moving joint carries)")
+      ->check(CLI::IsMember({"auto", "whole", "unmoved"}))->capture_default_str();
   cmd->add_option("--auto-methods", args->auto_methods,
                   "Auto experiment (seedless, whole rooms; runs only when --only names it): methods, comma-separated")
       ->capture_default_str();

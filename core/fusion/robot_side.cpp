@@ -47,8 +47,8 @@ ReconstructionOptions WalkOptions(double voxel_m, int walk) {
 ReconstructionOptions RefitOptions(double voxel_m, int walk) { return EyesOf(voxel_m, walk, kRefitArcDeg, 24, 24); }
 }  // namespace
 
-RobotSide::RobotSide(TriangleMesh mesh_base, PointCloud samples, std::uint64_t seed)
-    : mesh_base_(std::move(mesh_base)), samples_(std::move(samples)), seed_(seed) {}
+RobotSide::RobotSide(TriangleMesh mesh_base, PointCloud samples, std::uint64_t seed, bool partial)
+    : mesh_base_(std::move(mesh_base)), samples_(std::move(samples)), seed_(seed), partial_(partial) {}
 
 Result<PointCloud> SamplePosedRobot(const TriangleMesh& mesh_base, const std::string& name, std::size_t samples,
                                     std::uint64_t seed) {
@@ -67,10 +67,12 @@ Result<PointCloud> SampleRobot(const RobotModel& robot, const JointValues& joint
 }
 
 Result<std::shared_ptr<const RobotSide>> RobotSide::Create(const RobotModel& robot, const JointValues& joints,
-                                                           std::size_t samples, std::uint64_t seed) {
-  ARREF_ASSIGN_OR_RETURN(TriangleMesh mesh, robot.PosedMesh(joints));
+                                                           std::size_t samples, std::uint64_t seed,
+                                                           const std::set<std::string>* links) {
+  ARREF_ASSIGN_OR_RETURN(TriangleMesh mesh, links ? robot.PosedMesh(joints, *links) : robot.PosedMesh(joints));
   ARREF_ASSIGN_OR_RETURN(PointCloud cloud, SamplePosedRobot(mesh, robot.name(), samples, seed));
-  return std::shared_ptr<const RobotSide>(new RobotSide(std::move(mesh), std::move(cloud), seed));
+  const bool partial = links && links->size() < robot.GeometryLinks().size();
+  return std::shared_ptr<const RobotSide>(new RobotSide(std::move(mesh), std::move(cloud), seed, partial));
 }
 
 Result<std::shared_ptr<const PointCloud>> RobotSide::Expected(double voxel_m, int walk, std::size_t thinned_to,

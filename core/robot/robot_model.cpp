@@ -323,9 +323,24 @@ Result<std::map<std::string, Iso3>> RobotModel::LinkPoses(const JointValues& joi
 }
 
 Result<TriangleMesh> RobotModel::PosedMesh(const JointValues& joints) const {
+  const std::vector<std::string> all = GeometryLinks();
+  return PosedMesh(joints, std::set<std::string>(all.begin(), all.end()));
+}
+
+std::vector<std::string> RobotModel::GeometryLinks() const {
+  std::vector<std::string> links;
+  for (const auto& [link, link_mesh] : impl_->link_meshes) links.push_back(link);
+  return links;
+}
+
+Result<TriangleMesh> RobotModel::PosedMesh(const JointValues& joints, const std::set<std::string>& links) const {
+  for (const std::string& link : links)
+    if (!impl_->link_meshes.contains(link))
+      return Status::InvalidArgument("robot '" + name() + "' has no link '" + link + "' with geometry");
   ARREF_ASSIGN_OR_RETURN(const auto poses, LinkPoses(joints));
   TriangleMesh mesh;
   for (const auto& [link, link_mesh] : impl_->link_meshes) {
+    if (!links.contains(link)) continue;
     const auto pose = poses.find(link);  // every link lies on the tree from the root
     if (pose == poses.end()) return Status::Internal("robot link '" + link + "' has no pose");
     mesh.Append(link_mesh, pose->second);

@@ -61,6 +61,8 @@ Status ValidateCell(const CellOptions& c) {
       {"cell.second_robot_distance_m", c.second_robot_distance_m,
        !c.second_robot || (c.second_robot_distance_m > 0 && c.second_robot_distance_m <= 3.5),
        "must be in (0, 3.5] (the floor is 8 m wide)"},
+      {"cell.motion.amplitude_rad", c.motion.amplitude_rad, c.motion.amplitude_rad >= 0, "must be >= 0"},
+      {"cell.motion.cycles", c.motion.cycles, c.motion.cycles >= 0, "must be >= 0"},
   });
 }
 
@@ -205,12 +207,65 @@ Iso3 RandomWorldFrame(std::mt19937_64& rng) {
 
 // Ray casts every view from its true pose and fuses it at its believed pose, in the world
 // frame: the headset's voxel grid is aligned with its world, not with the cell.
-Result<TriangleMesh> ScanAndFuse(const CellScene& scene, const SimOptions& options, const Iso3& T_world_cell,
-                                 double voxel_m, std::uint64_t rng_seed, std::mt19937_64& rng,
+// The joints at view `view` of `views` under a mapping motion: each moving joint swings
+// amplitude * sin(2 pi cycles s) round its final value, s running from 1 at the first view to 0
+// at the last, so the last view sees the final joint state.
+JointValues JointsAtView(const RobotModel& robot, const JointValues& final_joints, const MappingMotion& motion, int view,
+                         int views) {
+  JointValues q = final_joints;
+  const double s = views > 1 ? static_cast<double>(views - 1 - view) / (views - 1) : 0.0;
+  for (const std::string& j : motion.joints) q[j] += motion.amplitude_rad * std::sin(2 * std::numbers::pi * motion.cycles * s);
+  return robot.ClampedToLimits(q);
+}
+
+// The cell as each view saw it: with a mapping motion, the robot re-posed per view (its
+// vertices are the scene's first, in the same order for every joint state), else one caster.
+class ViewCasters {
+ public:
+  ViewCasters(const CellScene& scene, const RobotModel& robot, const MappingMotion& motion, int views)
+      : scene_(scene), robot_(robot), motion_(motion), views_(views) {}
+
+  Result<const RayCaster*> At(int view) {
+    const bool moving = !motion_.joints.empty() && scene_.robot_vertices > 0;
+    if (caster_ && !moving) return &*caster_;
+    TriangleMesh mesh = scene_.mesh;
+    if (moving) {
+      ARREF_ASSIGN_OR_RETURN(const TriangleMesh posed,
+                             robot_.PosedMesh(JointsAtView(robot_, scene_.joints, motion_, view, views_)));
+      if (posed.vertices.size() != scene_.robot_vertices) return Status::Internal("the re-posed robot changed its mesh");
+      for (std::size_t i = 0; i < posed.vertices.size(); ++i)
+        mesh.vertices[i] = (scene_.T_cell_base * posed.vertices[i].cast<double>()).cast<float>();
+    }
+    ARREF_ASSIGN_OR_RETURN(RayCaster caster, RayCaster::Create(mesh));
+    caster_.emplace(std::move(caster));
+    return &*caster_;
+  }
+
+ private:
+  const CellScene& scene_;
+  const RobotModel& robot_;
+  const MappingMotion& motion_;
+  int views_;
+  std::optional<RayCaster> caster_;
+};
+
+// Each moving joint's range over the views (what a joint state stream sent while mapping).
+JointRanges RangesWhileMapping(const RobotModel& robot, const JointValues& final_joints, const MappingMotion& motion,
+                               int views) {
+  JointRanges ranges;
+  for (int i = 0; i < views; ++i)
+    for (const std::string& j : motion.joints) {
+      const double q = JointsAtView(robot, final_joints, motion, i, views).at(j);
+      auto [it, added] = ranges.emplace(j, std::pair{q, q});
+      if (!added) it->second = {std::min(it->second.first, q), std::max(it->second.second, q)};
+    }
+  return ranges;
+}
+
+Result<TriangleMesh> ScanAndFuse(const CellScene& scene, const RobotModel& robot, const SimOptions& options,
+                                 const Iso3& T_world_cell, double voxel_m, std::uint64_t rng_seed, std::mt19937_64& rng,
                                  std::vector<Vec3>* head_path_world, MeshImprint* imprint /* null: not measured */) {
   const ScanOptions& scan = options.scan;
-  auto caster = RayCaster::Create(scene.mesh);
-  if (!caster.ok()) return caster.status();
   const PinholeCamera camera = PinholeCamera::FromFov(scan.image_width, scan.image_height, scan.fov_horizontal_deg);
   TsdfOptions tsdf;
   tsdf.voxel_m = voxel_m;
@@ -221,8 +276,10 @@ Result<TriangleMesh> ScanAndFuse(const CellScene& scene, const SimOptions& optio
   tsdf.crop_radius_m = options.fusion.crop_radius_m;
   TsdfVolume volume(tsdf);
   const std::vector<View> views = WalkingPath(scan, scene.T_cell_base, rng);
+  ViewCasters casters(scene, robot, options.cell.motion, static_cast<int>(views.size()));
   for (int i = 0; i < static_cast<int>(views.size()); ++i) {
     std::vector<float> incidence;
+    ARREF_ASSIGN_OR_RETURN(const RayCaster* caster, casters.At(i));
     RangeImage range = caster->Render(camera, views[i].T_cell_camera_true, scan.max_range_m, &incidence);
     AddRangeNoise(range, scan, rng_seed, i);
     if (imprint) imprint->AddView(camera, T_world_cell * views[i].T_cell_camera_true, T_world_cell * views[i].T_cell_camera_believed,
@@ -436,14 +493,14 @@ Result<std::vector<Surface>> ScanAndMeshOpen3d(const CellScene& scene, const Rob
                                                std::mt19937_64& rng, std::vector<Vec3>* head_path_world,
                                                MeshImprint* imprint) {
   const ScanOptions& scan = options.scan;
-  auto caster = RayCaster::Create(scene.mesh);
-  if (!caster.ok()) return caster.status();
   const PinholeCamera camera = PinholeCamera::FromFov(scan.image_width, scan.image_height, scan.fov_horizontal_deg);
   const std::vector<View> views = WalkingPath(scan, scene.T_cell_base, rng);
   const auto patches = MissingPatches(scene, robot, options, device, rng_seed);
+  ViewCasters casters(scene, robot, options.cell.motion, static_cast<int>(views.size()));
   std::vector<RangeImage> ranges;
   std::vector<Iso3> T_world_camera;
   for (int i = 0; i < static_cast<int>(views.size()); ++i) {
+    ARREF_ASSIGN_OR_RETURN(const RayCaster* caster, casters.At(i));
     RangeImage range = caster->Render(camera, views[i].T_cell_camera_true, scan.max_range_m);
     AddRangeNoise(range, scan, rng_seed, i);
     DropPixels(range, camera, views[i].T_cell_camera_true, scene.T_cell_base.translation(), options.fusion.crop_radius_m, patches);
@@ -577,6 +634,8 @@ Result<SimulatedCell> SimulateCell(const RobotModel& robot, const SimOptions& re
   cell.T_world_base = cell.T_world_cell * scene->T_cell_base;
   cell.joints = scene->joints;
   cell.props = scene->props;
+  if (options.cell.robot_present)
+    cell.joints_while_mapping = RangesWhileMapping(robot, scene->joints, options.cell.motion, options.scan.views);
   std::size_t triangles = 0;
   std::optional<MeshImprint> imprint = RobotImprint(robot, *scene, cell.T_world_cell, rng_seed);
   if (mesher == Mesher::kOpen3d) {
@@ -589,7 +648,7 @@ Result<SimulatedCell> SimulateCell(const RobotModel& robot, const SimOptions& re
     if (imprint) cell.mesh_error_add_m = imprint->Add(SurfaceErrors(device, std::max(1, device.surface_updates), rng_seed));
   } else {
     cell.voxel_m = VoxelSize(options.fusion);
-    auto fused = ScanAndFuse(*scene, options, cell.T_world_cell, cell.voxel_m, rng_seed, rng, &cell.head_path_world,
+    auto fused = ScanAndFuse(*scene, robot, options, cell.T_world_cell, cell.voxel_m, rng_seed, rng, &cell.head_path_world,
                              imprint ? &*imprint : nullptr);
     if (!fused.ok()) return fused.status().WithContext("simulating the headset's scan");
     triangles = fused->triangles.size();

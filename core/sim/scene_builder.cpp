@@ -257,7 +257,10 @@ Result<CellScene> BuildCellScene(const RobotModel& robot, const CellOptions& opt
   headed.Append(*posed, Iso3(scene.T_cell_base.linear()));
   scene.footprint_cell = Translated(FootprintOf(headed), scene.T_cell_base.translation());
   // Without the robot the footprint stays reserved, so the rest of the cell is laid out alike.
-  if (options.robot_present) scene.mesh.Append(*posed, scene.T_cell_base);
+  if (options.robot_present) {
+    scene.mesh.Append(*posed, scene.T_cell_base);
+    scene.robot_vertices = posed->vertices.size();
+  }
   scene.props.push_back({"robot_footprint", scene.footprint_cell});
 
   Layout layout{&scene, {Grown(scene.footprint_cell, 0.05)}, {}, BoundsOf(MakeFloor(kFloorSize).vertices),

@@ -18,6 +18,7 @@ struct CellScene {
   JointValues joints;           // complete joint values of the main robot
   std::vector<Prop> props;
   Aabb footprint_cell;          // horizontal extent of the robot's base, cell frame
+  std::size_t robot_vertices = 0;  // the robot's posed mesh: the first vertices of mesh
 };
 
 // A box with outward, counter-clockwise faces, rotated by yaw about z around its centre.

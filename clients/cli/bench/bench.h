@@ -46,6 +46,12 @@ struct RobustnessConfig {
   int seeds = 2;  // per seed family and cell
   // Headset errors taken out of every cell (sim::LeaveOutErrors), to measure what each costs.
   std::vector<std::string> without;
+  // The robot working while the cell is mapped (sim::MappingMotion): none; wrist (the last half
+  // of the actuated joints swing); arm (all but the first); all. Amplitude and swings drawn per cell.
+  std::string motion = "none";
+  // What a fit on such a map rests on: auto (the product's choice, MovingFitLinks), whole (the
+  // whole model at the final joints), unmoved (only the links no moving joint carries).
+  std::string moving_fit = "auto";
 };
 
 // The tracking experiment: robots as RobustnessConfig's, with its split.
@@ -179,8 +185,10 @@ Status TrackExperiment(const Config& config, Tables* tables);       // robots x 
 // One bench cell of `kind` (as MakeCells makes them) simulated from `seed` by `mesher`; the
 // model side is shared when given (the same robot and joints), else built.
 // leave_out: headset errors taken out (sim::LeaveOutErrors).
+// motion: RobustnessConfig::motion, moving_fit: RobustnessConfig::moving_fit.
 Result<Cell> MakeCell(const RobotModel& robot, const std::string& kind, int index, std::uint64_t seed, sim::Mesher mesher,
-                      std::shared_ptr<const RobotSide> robot_side = nullptr, const std::vector<std::string>& leave_out = {});
+                      std::shared_ptr<const RobotSide> robot_side = nullptr, const std::vector<std::string>& leave_out = {},
+                      const std::string& motion = "none", const std::string& moving_fit = "auto");
 
 Status WriteReport(const Config& config, const Tables& tables, const std::string& command_line);
 

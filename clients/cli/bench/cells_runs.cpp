@@ -10,6 +10,9 @@
 #include <fstream>
 #include <numeric>
 
+#include "arref/base/split_mix.h"
+#include "arref/fusion/model_reconstruction.h"
+#include "arref/robot/joint_motion.h"
 #include "arref/scene/metrics.h"
 #include "arref/scene/nearest_neighbor.h"
 #include "arref/scene/sampling.h"
@@ -147,12 +150,55 @@ Result<std::vector<Cell>> MakeCells(const RobotModel& robot, const std::vector<s
   return cells;
 }
 
+namespace {
+
+// The joints that swing while the cell is mapped (RobustnessConfig::motion), with an amplitude
+// of 0.2-0.8 rad and 1-3 swings over the walk, drawn from a stream of the cell's own.
+sim::MappingMotion DrawMotion(const RobotModel& robot, const std::string& motion, std::uint64_t seed) {
+  sim::MappingMotion m;
+  if (motion == "none") return m;
+  const std::vector<JointInfo> joints = robot.ActuatedJoints();
+  const std::size_t n = joints.size();
+  const std::size_t first = motion == "wrist" ? n / 2 : motion == "arm" ? std::min<std::size_t>(1, n) : 0;
+  for (std::size_t i = first; i < n; ++i) m.joints.push_back(joints[i].name);
+  std::mt19937_64 rng(SplitMix64(seed ^ 0x4D4F5645u));
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  m.amplitude_rad = 0.2 + 0.6 * unit(rng);
+  m.cycles = 1.0 + 2.0 * unit(rng);
+  return m;
+}
+
+// The model side a fit on this cell rests on (RobustnessConfig::moving_fit), chosen from what
+// a server knows: the joint ranges a stream sent while the user mapped, and the map's edges.
+Result<std::shared_ptr<const RobotSide>> CellRobotSide(const RobotModel& robot, const Cell& cell,
+                                                       const std::string& moving_fit) {
+  const RegistrationOptions defaults;
+  std::optional<std::set<std::string>> links;
+  const sim::SimulatedCell& sim = cell.sim;
+  if (!sim.joints_while_mapping.empty() && moving_fit != "whole") {
+    const double voxel = MedianEdgeLength(cell.scene_world);
+    const bool always = moving_fit == "unmoved";
+    ARREF_ASSIGN_OR_RETURN(const MovingFit fit,
+                           ChooseMovingFit(robot, sim.joints, sim.joints_while_mapping, kJointMotionWhileMappingRad, voxel,
+                                           always ? 0.0 : kMovingFitMinLeverageVoxels, always ? 0.0 : kMovingFitMinMovedShare));
+    links = fit.links;
+    spdlog::info("bench: {}: {} unmoved links, {:.0f} % of the model's surface, yaw leverage {:.3f} m = {:.1f} voxels "
+                 "of {:.3f} m: the fit rests on {}", robot.name(), fit.unmoved.size(), 100 * fit.unmoved_area_share,
+                 fit.yaw_leverage_m, fit.yaw_leverage_m / voxel, voxel, links ? "them" : "the whole model");
+  }
+  return RobotSide::Create(robot, sim.joints, defaults.model_samples, defaults.sample_seed, links ? &*links : nullptr);
+}
+
+}  // namespace
+
 Result<Cell> MakeCell(const RobotModel& robot, const std::string& kind, int index, std::uint64_t seed, sim::Mesher mesher,
-                      std::shared_ptr<const RobotSide> robot_side, const std::vector<std::string>& leave_out) {
+                      std::shared_ptr<const RobotSide> robot_side, const std::vector<std::string>& leave_out,
+                      const std::string& motion, const std::string& moving_fit) {
   auto options = OptionsFor(kind, "small");
   if (!options.ok()) return options.status();
   std::mt19937_64 rng(seed);
   options->cell.joints = RandomJoints(robot, rng);
+  options->cell.motion = DrawMotion(robot, motion, seed);
   options->seed_count = 0;  // the experiment draws its seeds by family
   options->fusion.mesher = mesher;
   ARREF_RETURN_IF_ERROR(sim::LeaveOutErrors(leave_out, seed, &*options));
@@ -163,10 +209,7 @@ Result<Cell> MakeCell(const RobotModel& robot, const std::string& kind, int inde
   for (auto& s : cell.sim.surfaces) ARREF_RETURN_IF_ERROR(map.Upsert(s));
   cell.scene_world = *map.MergedWorld();
   if (!cell.robot) {
-    const RegistrationOptions defaults;
-    auto model = RobotSide::Create(robot, cell.sim.joints, defaults.model_samples, defaults.sample_seed);
-    if (!model.ok()) return model.status();
-    cell.robot = std::move(*model);
+    ARREF_ASSIGN_OR_RETURN(cell.robot, CellRobotSide(robot, cell, moving_fit));
   }
   spdlog::info("bench: {} cell '{}' #{} ({} mesher): {} triangles", robot.name(), kind, index, sim::MesherName(mesher),
                cell.scene_world.triangles.size());

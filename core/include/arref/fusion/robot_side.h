@@ -6,6 +6,7 @@
 #include <map>
 #include <memory>
 #include <mutex>
+#include <set>
 #include <string>
 #include <tuple>
 #include <vector>
@@ -31,9 +32,13 @@ Result<PointCloud> SamplePosedRobot(const TriangleMesh& mesh_base, const std::st
 // would mesh it (model_reconstruction.h), made on first use for each voxel size.
 class RobotSide {
  public:
+  // links: only these links' geometry (UnmovedLinks: a map made while the arm moved); null: all.
   static Result<std::shared_ptr<const RobotSide>> Create(const RobotModel& robot, const JointValues& joints,
-                                                         std::size_t samples, std::uint64_t seed);
+                                                         std::size_t samples, std::uint64_t seed,
+                                                         const std::set<std::string>* links = nullptr);
   const PointCloud& samples() const { return samples_; }
+  // Made from some of the robot's links only (Create's links).
+  bool partial() const { return partial_; }
   // Cached per millimetre of voxel size and walk; thread-safe. walk -1: all round; k in
   // [0, kWalks): a 216 degree arc centred at k * 360 / kWalks degrees. thinned_to > 0: at most
   // that many of its points (Thinned), as a method fits them. The first call for a voxel size
@@ -61,7 +66,7 @@ class RobotSide {
   static std::vector<Vec3> RefitEyes(int walk);
 
  private:
-  RobotSide(TriangleMesh mesh_base, PointCloud samples, std::uint64_t seed);
+  RobotSide(TriangleMesh mesh_base, PointCloud samples, std::uint64_t seed, bool partial);
   using ExpectedKey = std::tuple<long, int, std::size_t>;  // voxel in mm, walk, thinned_to
   Result<std::shared_ptr<const PointCloud>> ExpectedLocked(const ExpectedKey& key,
                                                            const CancelToken* cancel) const;  // under mutex_
@@ -72,6 +77,7 @@ class RobotSide {
   TriangleMesh mesh_base_;
   PointCloud samples_;
   std::uint64_t seed_;
+  bool partial_ = false;
   mutable std::mutex mutex_;
   mutable std::shared_ptr<const ExpectedSurfaceMaker> maker_;  // made on first use
   mutable std::map<ExpectedKey, std::shared_ptr<const PointCloud>> expected_;

@@ -3,6 +3,7 @@
 
 #include <map>
 #include <memory>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -64,6 +65,10 @@ class RobotModel {
 
   // The posed robot as one mesh in the root (base) frame.
   Result<TriangleMesh> PosedMesh(const JointValues& joints) const;
+  // The same with only the named links' geometry; a name the robot does not hold is an error.
+  Result<TriangleMesh> PosedMesh(const JointValues& joints, const std::set<std::string>& links) const;
+  // The links that carry geometry, by name.
+  std::vector<std::string> GeometryLinks() const;
 
   // Geometry of one link in its own frame (all its visuals or collisions).
   const TriangleMesh* LinkMesh(const std::string& link) const;

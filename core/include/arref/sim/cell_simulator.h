@@ -9,11 +9,21 @@
 #include <vector>
 
 #include "arref/base/geometry.h"
+#include "arref/robot/joint_motion.h"
 #include "arref/robot/robot_model.h"
 #include "arref/scene/spatial_mesh.h"
 #include "arref/base/status.h"
 
 namespace arref::sim {
+
+// The robot working while the user maps it: the moving joints swing round their final values
+// (CellOptions::joints) and come to them at the last view, so the map holds the moving links
+// smeared over the poses they passed through while the request sees the final joint state.
+struct MappingMotion {
+  std::vector<std::string> joints;  // actuated joints that move; empty: the robot stands still
+  double amplitude_rad = 0.5;       // how far either side of the final value (clamped into limits)
+  double cycles = 1.5;              // swings over the walk
+};
 
 // What stands in the cell. Lengths in metres; the robot base is at the cell origin.
 struct CellOptions {
@@ -29,6 +39,7 @@ struct CellOptions {
   int clutter_boxes = 4;            // random boxes on the floor and table
   bool second_robot = false;        // another robot of the same model nearby
   double second_robot_distance_m = 1.6;
+  MappingMotion motion;
 };
 
 // How the user walks and what the depth sensor sees (HoloLens long-throw-like).
@@ -151,6 +162,9 @@ struct SimulatedCell {
   std::vector<Surface> surfaces;      // in the internal frame; world via T_world_surface
   Iso3 T_world_base = Iso3::Identity();  // ground truth, random gravity-aligned world frame
   JointValues joints;                 // complete joint values of the robot
+  // With CellOptions::motion: each moving joint's least and most value over the views (what a
+  // joint state stream sent while the user mapped); empty when the robot stood still.
+  JointRanges joints_while_mapping;
   std::vector<Iso3> seeds;            // T_world_seed: user-like guesses of T_world_base
   TriangleMesh truth_world;           // exact scene geometry (robot + props) in world
   double voxel_m = 0.0;               // voxel edge used for fusion

@@ -15,6 +15,7 @@
 #include "arref/base/clock.h"
 #include "arref/fusion/model_reconstruction.h"
 #include "arref/robot/joint_motion.h"
+#include "mapping_motion.h"
 #include "registration_job.h"
 #include "robot_registry.h"
 #include "session.h"
@@ -29,22 +30,33 @@ constexpr auto kFlushGrace = std::chrono::seconds(5);     // for sessions to sen
 Status CancelledWhileRunning() { return Status::Cancelled("cancelled while running"); }
 
 // When the joints moved while the map was made, the links the fit rests on (ChooseMovingFit,
-// against the map's resolution) and what the Result says about it. Null: every link.
-Result<std::optional<std::set<std::string>>> MovingFitLinks(const Job& job, const ServedRobot& robot, JobOutcome* out) {
-  bool moved = false;
-  for (const auto& [name, range] : job.joints_while_mapping) moved = moved || range.second - range.first > kJointMotionWhileMappingRad;
-  if (!moved) return std::optional<std::set<std::string>>();
+// against the map's resolution) and what the Result says about it. Null: every link. When much
+// of the robot moved, the map does not show it as posed: the job's status is capped.
+// Joint states sent with no robot id apply to every robot: only this robot's joints count.
+Result<std::optional<std::set<std::string>>> MovingFitLinks(Job& job, const ServedRobot& robot, JobOutcome* out) {
+  JointRanges ranges;
+  for (const JointInfo& j : robot.model.ActuatedJoints())
+    if (const auto it = job.joints_while_mapping.find(j.name); it != job.joints_while_mapping.end()) ranges.insert(*it);
+  if (LargestRange(ranges) <= kJointMotionWhileMappingRad) return std::optional<std::set<std::string>>();
   const double voxel = MedianEdgeLength(*job.scene_world);
-  ARREF_ASSIGN_OR_RETURN(const MovingFit fit, ChooseMovingFit(robot.model, job.joints, job.joints_while_mapping,
+  ARREF_ASSIGN_OR_RETURN(const MovingFit fit, ChooseMovingFit(robot.model, job.joints, ranges,
                                                               kJointMotionWhileMappingRad, voxel, kMovingFitMinLeverageVoxels,
                                                               kMovingFitMinMovedShare));
   const std::string names = fmt::format("{}", fmt::join(fit.unmoved, ", "));
-  if (fit.links) {
+  if (fit.much_moved)
+    job.options.map_not_as_posed = fmt::format(
+        "the links that moved while the map was made are {:.0f} % of the robot: the map does not show it as posed",
+        100 * (1.0 - fit.unmoved_area_share));
+  std::optional<std::set<std::string>> links;
+  if (job.seedless) {  // a base alone would be searched for all over the room: not measured, not done
+    out->moving_fit_note = "a search of the whole map looks for the whole model, smeared mesh and all";
+  } else if (fit.links) {
+    links = fit.links;
     out->fitted_links.assign(fit.links->begin(), fit.links->end());
     out->moving_fit_note = fmt::format("the fit rests on the links that did not move ({})", names);
   } else if (fit.unmoved.empty()) {
     out->moving_fit_note = "every link moved: the fit rests on the whole model, smeared mesh and all";
-  } else if (1.0 - fit.unmoved_area_share < kMovingFitMinMovedShare) {
+  } else if (!fit.much_moved) {
     out->moving_fit_note = fmt::format("the moving links hold only {:.0f} % of the robot's surface: the fit rests on "
                                        "the whole model", 100 * (1.0 - fit.unmoved_area_share));
   } else {
@@ -55,7 +67,7 @@ Result<std::optional<std::set<std::string>>> MovingFitLinks(const Job& job, cons
   }
   spdlog::info("session {}: request {}: the joints moved while mapping; {}", job.session_id, job.request_id,
                out->moving_fit_note);
-  return fit.links;
+  return links;
 }
 
 }  // namespace

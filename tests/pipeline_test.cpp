@@ -129,6 +129,20 @@ TEST(RegisterScene, AFitOnTheLinksThatStoodStillIsNeverOk) {
   EXPECT_LT(part_sum, whole_sum) << "the whole model fitted to the smeared map is further off";
 }
 
+// A request whose map does not show the robot as posed (the server sets it when much of the arm
+// moved while mapping) is at most LOW_CONFIDENCE, with the reason it was given.
+TEST(RegisterScene, AMapThatDoesNotShowTheRobotAsPosedIsNeverOk) {
+  ARREF_SHARED_CELL(c);
+  RegistrationOptions options;
+  ASSERT_OK_AND_ASSIGN(const RegistrationReport plain, RegisterScene(*c.side, c.scene_world, c.cell.seeds[0], options));
+  ASSERT_EQ(plain.status, ResultStatus::kOk) << plain.status_reason;
+  options.map_not_as_posed = "the joints moved while the map was made";
+  ASSERT_OK_AND_ASSIGN(const RegistrationReport capped, RegisterScene(*c.side, c.scene_world, c.cell.seeds[0], options));
+  EXPECT_EQ(capped.status, ResultStatus::kLowConfidence);
+  EXPECT_EQ(capped.status_reason, options.map_not_as_posed);
+  EXPECT_TRUE(capped.T_world_base.isApprox(plain.T_world_base)) << "only the status changes";
+}
+
 // Users put the cube on the floor at the robot's foot, or at its waist: seeds 0.45 m below and
 // above the base, turned 150 degrees and 0.35 m off, still find it, because the base's height
 // comes from the supports in the crop rather than from the seed.

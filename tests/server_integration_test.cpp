@@ -1252,7 +1252,7 @@ TEST(ServerIntegration, TrackingErrorsAreClearAndKeepTheSession) {
 // Joints that move while the map is made smear the arm's mesh: the one-shot result says so, and
 // rests on the links that stood still when they fix the heading on this map's resolution
 // (ChooseMovingFit: a moving first joint leaves only the base, a moving second joint the turret
-// too); such a fit is never OK.
+// too). With most of the arm moving, no fit on that map is OK.
 TEST(ServerIntegration, ResultSaysWhenTheJointsMovedWhileMappingAndWhatTheFitRestedOn) {
   ServerProcess server;
   const HeadsetScene scene = Scene(1);
@@ -1295,10 +1295,11 @@ TEST(ServerIntegration, ResultSaysWhenTheJointsMovedWhileMappingAndWhatTheFitRes
     RecordProperty(joint + "_fitted_links", static_cast<int>(fitted.size()));
     if (rule.links) {
       EXPECT_NE(result.message().find("the fit rests on the links that did not move"), std::string::npos) << result.message();
-      EXPECT_NE(result.status(), pb::RESULT_STATUS_OK) << result.message();
     } else {
       EXPECT_NE(result.message().find("the fit rests on the whole model"), std::string::npos) << result.message();
     }
+    ASSERT_TRUE(rule.much_moved) << "the first and the second joint carry most of the arm";
+    EXPECT_NE(result.status(), pb::RESULT_STATUS_OK) << result.message();
   }
 }
 

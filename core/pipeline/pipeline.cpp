@@ -266,11 +266,12 @@ Result<RegistrationReport> Register(const PointCloud& model_base, const RobotSid
   const bool fused = std::find(report.stages_run.begin(), report.stages_run.end(), "fitted-exact-surface") ==
                      report.stages_run.end();
   const double mesh_voxel = !fused ? 0.0 : voxel > 0 ? voxel : MedianEdgeLength(cropped);
-  // A fit on part of the robot is never OK: on the dev split's smeared maps such fits were said
-  // OK 20-35 mm off where the whole model's never were (docs/robustness.md, "Joints moving").
-  const std::string partial = robot && robot->partial()
-                                  ? "the fit rests on the links that stood still while the map was made, not the whole robot"
-                                  : "";
+  // A fit on a map that does not show the robot as posed, or on part of the robot, is never OK:
+  // on smeared maps both were said OK 20-50 mm off (docs/robustness.md, "Joints moving while the
+  // map is made").
+  const std::string partial =
+      robot && robot->partial() ? "the fit rests on the links that stood still while the map was made, not the whole robot"
+                                : options.map_not_as_posed;
   AssignStatus(options.confidence, method->status_calibrated, CoarseMeshReason(options.confidence, model_base, mesh_voxel),
                partial, &report);
   clock.Stop();

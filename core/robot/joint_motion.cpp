@@ -74,8 +74,8 @@ Result<MovingFit> ChooseMovingFit(const RobotModel& robot, const JointValues& at
   const double area = whole.SurfaceArea();
   fit.unmoved_area_share = area > 0 ? still.SurfaceArea() / area : 0.0;
   fit.yaw_leverage_m = YawLeverage(still);
-  if (!fit.unmoved.empty() && 1.0 - fit.unmoved_area_share >= min_moved_share &&
-      fit.yaw_leverage_m >= min_leverage_voxels * mesh_voxel_m)
+  fit.much_moved = 1.0 - fit.unmoved_area_share >= min_moved_share;
+  if (!fit.unmoved.empty() && fit.much_moved && fit.yaw_leverage_m >= min_leverage_voxels * mesh_voxel_m)
     fit.links = fit.unmoved;
   return fit;
 }

@@ -205,8 +205,6 @@ Iso3 RandomWorldFrame(std::mt19937_64& rng) {
   return MakeYawPose(x, y, z, yaw(rng));
 }
 
-// Ray casts every view from its true pose and fuses it at its believed pose, in the world
-// frame: the headset's voxel grid is aligned with its world, not with the cell.
 // The joints at view `view` of `views` under a mapping motion: each moving joint swings
 // amplitude * sin(2 pi cycles s) round its final value, s running from 1 at the first view to 0
 // at the last, so the last view sees the final joint state.
@@ -262,6 +260,8 @@ JointRanges RangesWhileMapping(const RobotModel& robot, const JointValues& final
   return ranges;
 }
 
+// Ray casts every view from its true pose and fuses it at its believed pose, in the world
+// frame: the headset's voxel grid is aligned with its world, not with the cell.
 Result<TriangleMesh> ScanAndFuse(const CellScene& scene, const RobotModel& robot, const SimOptions& options,
                                  const Iso3& T_world_cell, double voxel_m, std::uint64_t rng_seed, std::mt19937_64& rng,
                                  std::vector<Vec3>* head_path_world, MeshImprint* imprint /* null: not measured */) {

@@ -104,6 +104,9 @@ struct Cell {
   TriangleMesh scene_world;
   std::shared_ptr<const RobotSide> robot;  // samples and the expected headset surface
   TriangleMesh robot_base;                 // the posed robot in its base frame, for pictures (MakeCells)
+  // RegistrationOptions::map_not_as_posed for requests on this cell (the joints moved while it
+  // was mapped, as CellRobotSide judged it).
+  std::string map_not_as_posed;
 };
 
 // One registration against ground truth.

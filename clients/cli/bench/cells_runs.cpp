@@ -170,23 +170,26 @@ sim::MappingMotion DrawMotion(const RobotModel& robot, const std::string& motion
 
 // The model side a fit on this cell rests on (RobustnessConfig::moving_fit), chosen from what
 // a server knows: the joint ranges a stream sent while the user mapped, and the map's edges.
-Result<std::shared_ptr<const RobotSide>> CellRobotSide(const RobotModel& robot, const Cell& cell,
-                                                       const std::string& moving_fit) {
+// Marks the cell's map as not showing the robot as posed when much of it moved (as the server).
+Status SetCellRobotSide(const RobotModel& robot, const std::string& moving_fit, Cell* cell) {
   const RegistrationOptions defaults;
   std::optional<std::set<std::string>> links;
-  const sim::SimulatedCell& sim = cell.sim;
-  if (!sim.joints_while_mapping.empty() && moving_fit != "whole") {
-    const double voxel = MedianEdgeLength(cell.scene_world);
+  const sim::SimulatedCell& sim = cell->sim;
+  if (!sim.joints_while_mapping.empty()) {
+    const double voxel = MedianEdgeLength(cell->scene_world);
     const bool always = moving_fit == "unmoved";
     ARREF_ASSIGN_OR_RETURN(const MovingFit fit,
                            ChooseMovingFit(robot, sim.joints, sim.joints_while_mapping, kJointMotionWhileMappingRad, voxel,
                                            always ? 0.0 : kMovingFitMinLeverageVoxels, always ? 0.0 : kMovingFitMinMovedShare));
-    links = fit.links;
+    if (moving_fit != "whole") links = fit.links;
+    if (fit.much_moved && moving_fit == "auto") cell->map_not_as_posed = "the joints moved while the map was made";
     spdlog::info("bench: {}: {} unmoved links, {:.0f} % of the model's surface, yaw leverage {:.3f} m = {:.1f} voxels "
                  "of {:.3f} m: the fit rests on {}", robot.name(), fit.unmoved.size(), 100 * fit.unmoved_area_share,
                  fit.yaw_leverage_m, fit.yaw_leverage_m / voxel, voxel, links ? "them" : "the whole model");
   }
-  return RobotSide::Create(robot, sim.joints, defaults.model_samples, defaults.sample_seed, links ? &*links : nullptr);
+  ARREF_ASSIGN_OR_RETURN(cell->robot, RobotSide::Create(robot, sim.joints, defaults.model_samples, defaults.sample_seed,
+                                                        links ? &*links : nullptr));
+  return Status::Ok();
 }
 
 }  // namespace
@@ -208,9 +211,7 @@ Result<Cell> MakeCell(const RobotModel& robot, const std::string& kind, int inde
   SpatialMesh map;
   for (auto& s : cell.sim.surfaces) ARREF_RETURN_IF_ERROR(map.Upsert(s));
   cell.scene_world = *map.MergedWorld();
-  if (!cell.robot) {
-    ARREF_ASSIGN_OR_RETURN(cell.robot, CellRobotSide(robot, cell, moving_fit));
-  }
+  if (!cell.robot) ARREF_RETURN_IF_ERROR(SetCellRobotSide(robot, moving_fit, &cell));
   spdlog::info("bench: {} cell '{}' #{} ({} mesher): {} triangles", robot.name(), kind, index, sim::MesherName(mesher),
                cell.scene_world.triangles.size());
   if (mesher == sim::Mesher::kOpen3d) {

@@ -230,7 +230,7 @@ Status RobustnessExperiment(const Config& config, Tables* tables) {
       for (sim::Mesher mesher : meshers) {
         auto cell = MakeCell(*robot.model, kind, i, cell_seed, mesher, side, rc.without, rc.motion, rc.moving_fit);
         if (!cell.ok()) return cell.status();
-        if (rc.motion == "none") side = cell->robot;  // else chosen per mesh (CellRobotSide)
+        if (rc.motion == "none") side = cell->robot;  // else chosen per mesh (SetCellRobotSide)
         cells.push_back(std::move(*cell));
         const Cell& c = cells.back();
         for (sim::SeedFamily family : families) {
@@ -244,6 +244,7 @@ Status RobustnessExperiment(const Config& config, Tables* tables) {
               job.cell = &c;
               job.T_world_seed = seeds[static_cast<std::size_t>(s)];
               job.options = BaseOptions(method, "small");  // the 2 m crop, 16,000 scene samples
+              job.options.map_not_as_posed = c.map_not_as_posed;
               job.run = Label("robustness", method, "small", "", c, s);
               job.run.robot = robot.label, job.run.mesher = sim::MesherName(mesher);
               job.run.seed_family = sim::SeedFamilyName(family);

@@ -76,6 +76,10 @@ struct RegistrationOptions {
   // second of the mapping), when the app sends it: arref-icp then models the mesh from those
   // eyes instead of guessing which side of the robot was walked. Empty: unknown.
   std::vector<Vec3> head_path_world;
+  // Non-empty: why the map does not show the robot as posed (its joints moved while the map was
+  // made: ChooseMovingFit's much_moved). The status is then at most LOW_CONFIDENCE, with this as
+  // its reason, whatever the fit rests on.
+  std::string map_not_as_posed;
 };
 
 // What a method gets from the pipeline: model points in the robot base frame, scene points in

@@ -47,6 +47,9 @@ struct MovingFit {
   std::set<std::string> unmoved;               // the links no moving joint carries
   double unmoved_area_share = 1.0;             // of the posed model's surface
   double yaw_leverage_m = 0.0;                 // of the unmoved links
+  // The moving links hold at least min_moved_share of the surface: the map does not show the
+  // robot as posed, whatever the fit rests on.
+  bool much_moved = false;
 };
 Result<MovingFit> ChooseMovingFit(const RobotModel& robot, const JointValues& at, const JointRanges& ranges,
                                   double min_range, double mesh_voxel_m, double min_leverage_voxels,

@@ -1,7 +1,5 @@
 #include "replay.h"
 
-#include "mapping_motion.h"
-
 #include <fmt/format.h>
 #include <spdlog/spdlog.h>
 
@@ -15,6 +13,7 @@
 
 #include "arref/scene/spatial_mesh.h"
 #include "convert.h"
+#include "mapping_motion.h"
 #include "registration_job.h"
 #include "request_builder.h"
 #include "subscriber_hub.h"

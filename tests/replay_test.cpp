@@ -2,6 +2,11 @@
 // the live server answered, not by how fast the replaying machine registers.
 #include <gtest/gtest.h>
 
+#include <algorithm>
+#include <set>
+
+#include "arref/fusion/model_reconstruction.h"
+#include "arref/robot/joint_motion.h"
 #include "arref/sim/cell_simulator.h"
 #include "convert.h"
 #include "recording.h"
@@ -93,6 +98,45 @@ TEST(Replay, WithoutAnswerTimesTheReplayedRunDecides) {
   ASSERT_OK_AND_ASSIGN(const CancelOutcome out, Replay(rec));
   EXPECT_EQ(out.result, pb::RESULT_STATUS_CANCELLED);
   EXPECT_NE(out.message.find("the replayed run took"), std::string::npos) << out.message;
+}
+
+// Joint states that moved joint_a2 while the map was made: the replay says so and rests the fit
+// on what stood still as the live session does (ChooseMovingFit on the recorded map).
+TEST(Replay, JointsThatMovedWhileMappingAreReplayedLikeTheLiveSession) {
+  ASSERT_OK_AND_ASSIGN(wire::Recording rec, CancelledSession(1.0005));
+  const auto request = std::find_if(rec.messages.begin(), rec.messages.end(),
+                                    [](const pb::RecordedMessage& m) { return m.message().has_register_request(); });
+  ASSERT_NE(request, rec.messages.end());
+  std::vector<pb::RecordedMessage> joints;
+  for (const double q : {0.1, 0.5}) {
+    pb::RecordedMessage m;
+    m.set_t_s(0.8);
+    m.mutable_message()->mutable_joint_state()->set_robot_id("kr5");
+    m.mutable_message()->mutable_joint_state()->add_names("joint_a2");
+    m.mutable_message()->mutable_joint_state()->add_positions(q);
+    joints.push_back(std::move(m));
+  }
+  rec.messages.insert(request, joints.begin(), joints.end());
+  ASSERT_OK_AND_ASSIGN(const ServerConfig config, LoadDefaultServerConfig());
+  ASSERT_OK_AND_ASSIGN(const auto answers, ReplayRecording(rec, config));
+  const auto result = std::find_if(answers.begin(), answers.end(), [](const ReplayedAnswer& a) { return a.message.has_result(); });
+  ASSERT_NE(result, answers.end());
+  const pb::Result& r = result->message.result();
+  EXPECT_TRUE(r.joints_moved_while_mapping()) << r.message();
+  EXPECT_NEAR(r.joint_motion_rad(), 0.4, 1e-9);
+  TriangleMesh map;
+  for (const pb::RecordedMessage& m : rec.messages)
+    if (m.message().has_surface_upsert()) {
+      ASSERT_OK_AND_ASSIGN(const Surface surface, wire::SurfaceFromProto(m.message().surface_upsert()));
+      map.Append(surface.mesh, surface.T_world_surface);
+    }
+  ASSERT_OK_AND_ASSIGN(const RobotModel robot, RobotModel::Load(testing::BuiltinRobotUrdf()));
+  ASSERT_OK_AND_ASSIGN(const MovingFit rule,
+                       ChooseMovingFit(robot, {{"joint_a2", 0.5}}, {{"joint_a2", {0.1, 0.5}}}, kJointMotionWhileMappingRad,
+                                       MedianEdgeLength(map), kMovingFitMinLeverageVoxels, kMovingFitMinMovedShare));
+  const std::set<std::string> fitted(r.fitted_links().begin(), r.fitted_links().end());
+  EXPECT_EQ(fitted, rule.links.value_or(std::set<std::string>{})) << r.message();
+  EXPECT_NE(r.status(), pb::RESULT_STATUS_OK) << r.message();
 }
 
 }  // namespace

@@ -9,10 +9,7 @@ namespace arref::server {
 
 void MappingMotion::Add(const std::string& robot_id, const JointValues& joints) {
   JointRanges& ranges = ranges_[robot_id];
-  for (const auto& [name, value] : joints) {
-    auto [it, fresh] = ranges.try_emplace(name, value, value);
-    if (!fresh) it->second = {std::min(it->second.first, value), std::max(it->second.second, value)};
-  }
+  for (const auto& [name, value] : joints) WidenRange(ranges, name, value, value);
 }
 
 JointRanges MappingMotion::For(const std::string& robot_id) const {
@@ -20,10 +17,7 @@ JointRanges MappingMotion::For(const std::string& robot_id) const {
   for (const std::string& id : {robot_id, std::string()}) {
     const auto it = ranges_.find(id);
     if (it == ranges_.end()) continue;
-    for (const auto& [name, range] : it->second) {
-      auto [r, fresh] = merged.try_emplace(name, range);
-      if (!fresh) r->second = {std::min(r->second.first, range.first), std::max(r->second.second, range.second)};
-    }
+    for (const auto& [name, range] : it->second) WidenRange(merged, name, range.first, range.second);
     if (robot_id.empty()) break;
   }
   return merged;

@@ -88,9 +88,10 @@ std::string CoarseMeshReason(const ConfidenceThresholds& t, const PointCloud& mo
                      voxel_m * 100, side, across, t.min_voxels_across_robot);
 }
 
-// partial_model: non-empty when the model holds only some links (RobotSide::partial()).
+// not_as_posed: non-empty when the fit cannot stand for the robot as posed (a model of some of
+// its links, or a map made while it moved): why it is not OK.
 void AssignStatus(const ConfidenceThresholds& t, bool calibrated, const std::string& coarse_mesh,
-                  const std::string& partial_model, RegistrationReport* r) {
+                  const std::string& not_as_posed, RegistrationReport* r) {
   std::string why;
   if (r->inlier_fraction < t.ok_min_inlier_fraction)
     why = fmt::format("only {:.0f} % of visible model points lie on the scene", r->inlier_fraction * 100);
@@ -102,8 +103,8 @@ void AssignStatus(const ConfidenceThresholds& t, bool calibrated, const std::str
     why = fmt::format("ambiguous: another pose fits almost as well (margin {:.3f})", r->margin);
   else if (!coarse_mesh.empty())
     why = coarse_mesh;
-  else if (!partial_model.empty())
-    why = partial_model;
+  else if (!not_as_posed.empty())
+    why = not_as_posed;
   r->status_reason = why;
   if (why.empty())
     r->status = ResultStatus::kOk;
@@ -267,13 +268,13 @@ Result<RegistrationReport> Register(const PointCloud& model_base, const RobotSid
                      report.stages_run.end();
   const double mesh_voxel = !fused ? 0.0 : voxel > 0 ? voxel : MedianEdgeLength(cropped);
   // A fit on a map that does not show the robot as posed, or on part of the robot, is never OK:
-  // on smeared maps both were said OK 20-50 mm off (docs/robustness.md, "Joints moving while the
-  // map is made").
-  const std::string partial =
+  // on smeared maps both were said OK 20-62 mm off, and on part of a small arm up to 0.75 m
+  // (docs/robustness.md, "Joints moving while the map is made").
+  const std::string not_as_posed =
       robot && robot->partial() ? "the fit rests on the links that stood still while the map was made, not the whole robot"
                                 : options.map_not_as_posed;
   AssignStatus(options.confidence, method->status_calibrated, CoarseMeshReason(options.confidence, model_base, mesh_voxel),
-               partial, &report);
+               not_as_posed, &report);
   clock.Stop();
   if (progress) progress("done", 1.0);
   return report;

@@ -254,8 +254,7 @@ JointRanges RangesWhileMapping(const RobotModel& robot, const JointValues& final
   for (int i = 0; i < views; ++i)
     for (const std::string& j : motion.joints) {
       const double q = JointsAtView(robot, final_joints, motion, i, views).at(j);
-      auto [it, added] = ranges.emplace(j, std::pair{q, q});
-      if (!added) it->second = {std::min(it->second.first, q), std::max(it->second.second, q)};
+      WidenRange(ranges, j, q, q);
     }
   return ranges;
 }

@@ -4,6 +4,7 @@
 // need the robot to stop).
 #pragma once
 
+#include <algorithm>
 #include <map>
 #include <optional>
 #include <set>
@@ -26,6 +27,12 @@ inline constexpr double kMovingFitMinMovedShare = 1.0 / 3.0;
 
 // Per joint, the least and the most value seen over a time (rad or m).
 using JointRanges = std::map<std::string, std::pair<double, double>>;
+
+// Widens a joint's range to take in [lo, hi] (adds it when new).
+inline void WidenRange(JointRanges& ranges, const std::string& joint, double lo, double hi) {
+  auto [it, fresh] = ranges.try_emplace(joint, lo, hi);
+  if (!fresh) it->second = {std::min(it->second.first, lo), std::max(it->second.second, hi)};
+}
 
 // The links with geometry whose pose in the base frame none of the joints in `ranges` moves:
 // each joint whose range exceeds min_range is set to both ends of its range (the rest of the

@@ -12,12 +12,14 @@ void MappingMotion::Add(const std::string& robot_id, const JointValues& joints) 
   for (const auto& [name, value] : joints) WidenRange(ranges, name, value, value);
 }
 
-JointRanges MappingMotion::For(const std::string& robot_id) const {
+JointRanges MappingMotion::For(const std::string& robot_id, const RobotModel& model) const {
   JointRanges merged;
   for (const std::string& id : {robot_id, std::string()}) {
     const auto it = ranges_.find(id);
     if (it == ranges_.end()) continue;
-    for (const auto& [name, range] : it->second) WidenRange(merged, name, range.first, range.second);
+    for (const JointInfo& joint : model.ActuatedJoints())
+      if (const auto range = it->second.find(joint.name); range != it->second.end())
+        WidenRange(merged, joint.name, range->second.first, range->second.second);
     if (robot_id.empty()) break;
   }
   return merged;

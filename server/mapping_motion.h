@@ -16,8 +16,10 @@ class MappingMotion {
  public:
   // A joint state accepted while the session held surfaces.
   void Add(const std::string& robot_id, const JointValues& joints);
-  // Each joint's range for this robot id merged with the states that named no robot ("").
-  JointRanges For(const std::string& robot_id) const;
+  // The range of each of the robot's actuated joints, over the states sent for this robot id and
+  // those that named no robot ("", which RequestJoints applies to every robot). Joints the robot
+  // does not have are left out, so the Result's flag and the fit (MovingFitLinks) see one motion.
+  JointRanges For(const std::string& robot_id, const RobotModel& model) const;
 
  private:
   std::map<std::string, JointRanges> ranges_;  // by robot id

@@ -170,7 +170,7 @@ class OfflineSession {
     Job& j = **job;
     j.session_id = header_.session_id();
     j.scene_world = spatial_.MergedWorld();
-    j.joints_while_mapping = mapping_motion_.For(j.robot_id);
+    j.joints_while_mapping = mapping_motion_.For(j.robot_id, robots_.Find(j.robot_id)->model);
     j.scene_time_unix_s = header_.start_unix_s() + t_s;  // as the server stamped it, to the recording's precision
     for (const auto& [sid, surface] : spatial_.surfaces())
       j.scene_headset_time_s = std::max(j.scene_headset_time_s, surface.timestamp_s);

@@ -32,11 +32,8 @@ Status CancelledWhileRunning() { return Status::Cancelled("cancelled while runni
 // When the joints moved while the map was made, the links the fit rests on (ChooseMovingFit,
 // against the map's resolution) and what the Result says about it. Null: every link. When much
 // of the robot moved, the map does not show it as posed: the job's status is capped.
-// Joint states sent with no robot id apply to every robot: only this robot's joints count.
 Result<std::optional<std::set<std::string>>> MovingFitLinks(Job& job, const ServedRobot& robot, JobOutcome* out) {
-  JointRanges ranges;
-  for (const JointInfo& j : robot.model.ActuatedJoints())
-    if (const auto it = job.joints_while_mapping.find(j.name); it != job.joints_while_mapping.end()) ranges.insert(*it);
+  const JointRanges& ranges = job.joints_while_mapping;  // the robot's own joints (MappingMotion::For)
   if (LargestRange(ranges) <= kJointMotionWhileMappingRad) return std::optional<std::set<std::string>>();
   const double voxel = MedianEdgeLength(*job.scene_world);
   ARREF_ASSIGN_OR_RETURN(const MovingFit fit, ChooseMovingFit(robot.model, job.joints, ranges,

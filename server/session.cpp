@@ -558,7 +558,7 @@ std::shared_ptr<Job> Session::MakeJob(const pb::RegisterRequest& m) {
   (*job)->memory = std::move(*memory);
   (*job)->session_id = id_;
   (*job)->scene_world = spatial_.MergedWorld();
-  (*job)->joints_while_mapping = mapping_motion_.For((*job)->robot_id);
+  (*job)->joints_while_mapping = mapping_motion_.For((*job)->robot_id, ctx_.robots.Find((*job)->robot_id)->model);
   (*job)->scene_time_unix_s =
       std::chrono::duration<double>(std::chrono::system_clock::now().time_since_epoch()).count();
   for (const auto& [sid, surface] : spatial_.surfaces())

@@ -4,6 +4,8 @@
 
 #include <algorithm>
 #include <set>
+#include <tuple>
+#include <utility>
 
 #include "arref/fusion/model_reconstruction.h"
 #include "arref/robot/joint_motion.h"
@@ -102,26 +104,33 @@ TEST(Replay, WithoutAnswerTimesTheReplayedRunDecides) {
 
 // Joint states that moved joint_a2 while the map was made: the replay says so and rests the fit
 // on what stood still as the live session does (ChooseMovingFit on the recorded map).
-TEST(Replay, JointsThatMovedWhileMappingAreReplayedLikeTheLiveSession) {
-  ASSERT_OK_AND_ASSIGN(wire::Recording rec, CancelledSession(1.0005));
+// The recording with joint states (robot id, joint, position) inserted before its request, and
+// the replay's Result.
+Result<std::pair<wire::Recording, pb::Result>> ReplayWithJointStates(
+    const std::vector<std::tuple<std::string, std::string, double>>& states) {
+  ARREF_ASSIGN_OR_RETURN(wire::Recording rec, CancelledSession(1.0005));
   const auto request = std::find_if(rec.messages.begin(), rec.messages.end(),
                                     [](const pb::RecordedMessage& m) { return m.message().has_register_request(); });
-  ASSERT_NE(request, rec.messages.end());
   std::vector<pb::RecordedMessage> joints;
-  for (const double q : {0.1, 0.5}) {
+  for (const auto& [robot_id, name, q] : states) {
     pb::RecordedMessage m;
     m.set_t_s(0.8);
-    m.mutable_message()->mutable_joint_state()->set_robot_id("kr5");
-    m.mutable_message()->mutable_joint_state()->add_names("joint_a2");
+    m.mutable_message()->mutable_joint_state()->set_robot_id(robot_id);
+    m.mutable_message()->mutable_joint_state()->add_names(name);
     m.mutable_message()->mutable_joint_state()->add_positions(q);
     joints.push_back(std::move(m));
   }
   rec.messages.insert(request, joints.begin(), joints.end());
-  ASSERT_OK_AND_ASSIGN(const ServerConfig config, LoadDefaultServerConfig());
-  ASSERT_OK_AND_ASSIGN(const auto answers, ReplayRecording(rec, config));
+  ARREF_ASSIGN_OR_RETURN(const ServerConfig config, LoadDefaultServerConfig());
+  ARREF_ASSIGN_OR_RETURN(const auto answers, ReplayRecording(rec, config));
   const auto result = std::find_if(answers.begin(), answers.end(), [](const ReplayedAnswer& a) { return a.message.has_result(); });
-  ASSERT_NE(result, answers.end());
-  const pb::Result& r = result->message.result();
+  if (result == answers.end()) return Status::NotFound("the replay gave no Result");
+  return std::pair{std::move(rec), result->message.result()};
+}
+
+TEST(Replay, JointsThatMovedWhileMappingAreReplayedLikeTheLiveSession) {
+  ASSERT_OK_AND_ASSIGN(const auto replayed, ReplayWithJointStates({{"kr5", "joint_a2", 0.1}, {"kr5", "joint_a2", 0.5}}));
+  const auto& [rec, r] = replayed;
   EXPECT_TRUE(r.joints_moved_while_mapping()) << r.message();
   EXPECT_NEAR(r.joint_motion_rad(), 0.4, 1e-9);
   TriangleMesh map;
@@ -137,6 +146,22 @@ TEST(Replay, JointsThatMovedWhileMappingAreReplayedLikeTheLiveSession) {
   const std::set<std::string> fitted(r.fitted_links().begin(), r.fitted_links().end());
   EXPECT_EQ(fitted, rule.links.value_or(std::set<std::string>{})) << r.message();
   EXPECT_NE(r.status(), pb::RESULT_STATUS_OK) << r.message();
+}
+
+// A joint state that names no robot applies to every robot (RequestJoints), but only the joints
+// a robot has are its motion: joints of another arm that moved while the map was made do not
+// mark this robot's Result (its flag once counted them while its fit did not).
+TEST(Replay, OnlyTheRequestedRobotsJointsCountAsMotionWhileMapping) {
+  ASSERT_OK_AND_ASSIGN(const auto other, ReplayWithJointStates({{"kr5", "joint_a2", 0.3}, {"", "elbow", 0.0},
+                                                               {"", "elbow", 1.0}, {"kr5", "joint_a2", 0.3}}));
+  EXPECT_FALSE(other.second.joints_moved_while_mapping()) << other.second.message();
+  EXPECT_EQ(other.second.joint_motion_rad(), 0.0);
+  EXPECT_EQ(other.second.message().find("while the map was made"), std::string::npos) << other.second.message();
+
+  ASSERT_OK_AND_ASSIGN(const auto own, ReplayWithJointStates({{"kr5", "joint_a2", 0.3}, {"", "joint_a3", 0.0},
+                                                             {"", "joint_a3", 0.6}, {"kr5", "joint_a2", 0.3}}));
+  EXPECT_TRUE(own.second.joints_moved_while_mapping()) << own.second.message();
+  EXPECT_NEAR(own.second.joint_motion_rad(), 0.6, 1e-9);
 }
 
 }  // namespace

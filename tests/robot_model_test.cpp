@@ -158,6 +158,35 @@ TEST(RobotModel, JointLoopsAndTwoParentsAreRejected) {
   EXPECT_EQ(chain->root_link(), "base");
 }
 
+// TinyXML reads a UTF-8 character's whole sequence without looking for the end of the text, so
+// a file cut inside one made it read past the buffer (found by tests/fuzz/urdf_fuzz.cpp under
+// ASan); a NUL ended the document early, unseen. Both are refused naming the byte, while UTF-8
+// text (a German comment, a name with an accent) still loads.
+TEST(RobotModel, TextThatIsNotUtf8IsRefusedNamingTheByte) {
+  const std::string xml = "<robot name='r\xC3\xA9'><!-- Gelenk \xC3\xA4 \xE2\x82\xAC \xF0\x9F\xA4\x96 --><link name='a'/></robot>";
+  auto good = RobotModel::FromString(xml, "/tmp");
+  ASSERT_TRUE(good.ok()) << good.status().message();
+  EXPECT_EQ(good->name(), "r\xC3\xA9");
+
+  for (const std::string& cut : {std::string("\xF0"), std::string("\xE2\x82"), std::string("\xC3")}) {
+    auto bad = RobotModel::FromString(xml + cut, "/tmp");
+    ASSERT_FALSE(bad.ok());
+    EXPECT_EQ(bad.status().code(), StatusCode::kInvalidArgument);
+    EXPECT_NE(bad.status().message().find("byte " + std::to_string(xml.size()) + " "), std::string::npos)
+        << bad.status().message();
+    EXPECT_NE(bad.status().message().find("UTF-8"), std::string::npos) << bad.status().message();
+  }
+  std::string latin1 = xml;
+  latin1[latin1.find("\xC3\xA4")] = '\xE4';  // "ä" saved as Latin-1: E4 then a space
+  EXPECT_FALSE(RobotModel::FromString(latin1, "/tmp").ok());
+
+  std::string with_nul = xml;
+  with_nul.insert(with_nul.find("<link"), 1, '\0');
+  auto nul = RobotModel::FromString(with_nul, "/tmp");
+  ASSERT_FALSE(nul.ok());
+  EXPECT_NE(nul.status().message().find("is NUL"), std::string::npos) << nul.status().message();
+}
+
 // A mimic joint must follow an actuated joint: one that mimicked itself or another mimic joint
 // loaded, and completing its joint state then threw std::out_of_range (found by
 // tests/fuzz/urdf_fuzz.cpp; the server completes the defaults of every robot it loads).

@@ -84,6 +84,30 @@ JointType ToJointType(int urdf_type) {
   }
 }
 
+// TinyXML (which urdfdom parses with) reads a UTF-8 lead byte's whole sequence without looking
+// for the end of the text: a sequence cut short by the end of the file makes it read past the
+// buffer (heap-buffer-overflow, found by tests/fuzz/urdf_fuzz.cpp), and a NUL byte silently ends
+// the document early. XML without an encoding declaration is UTF-8 (XML 1.0, 4.3.3), so refuse
+// anything else before TinyXML sees it, naming the first bad byte.
+Status CheckUtf8Text(const std::string& text) {
+  const auto* bytes = reinterpret_cast<const unsigned char*>(text.data());
+  for (std::size_t i = 0; i < text.size();) {
+    const unsigned char lead = bytes[i];
+    if (lead == 0) return Status::InvalidArgument(fmt::format("not a valid URDF: byte {} is NUL", i));
+    // Sequence length from the lead byte (RFC 3629: C0, C1 and F5-FF never appear).
+    const std::size_t length = lead < 0x80 ? 1 : lead >= 0xC2 && lead <= 0xDF ? 2 : lead >= 0xE0 && lead <= 0xEF ? 3
+                                           : lead >= 0xF0 && lead <= 0xF4 ? 4 : 0;
+    bool ok = length > 0 && i + length <= text.size();
+    for (std::size_t k = 1; ok && k < length; ++k) ok = (bytes[i + k] & 0xC0) == 0x80;
+    if (!ok)
+      return Status::InvalidArgument(
+          fmt::format("not a valid URDF: byte {} (0x{:02X}) starts no complete UTF-8 character (save it as UTF-8)", i,
+                      lead));
+    i += length;
+  }
+  return Status::Ok();
+}
+
 // URDF joints must form a tree. urdfdom links a parent to its children with owning pointers
 // before it checks the tree, so joints that loop (a -> b -> a), or a link with two parents, leave
 // a cycle it never frees, and a loop beside the tree is even accepted with links that have no
@@ -245,6 +269,7 @@ Result<RobotModel> RobotModel::Load(const std::string& urdf_path, const RobotLoa
 
 Result<RobotModel> RobotModel::FromString(const std::string& urdf_xml, const std::string& base_dir,
                                           const RobotLoadOptions& options) {
+  ARREF_RETURN_IF_ERROR(CheckUtf8Text(urdf_xml));
   ARREF_RETURN_IF_ERROR(CheckJointTree(urdf_xml));
   auto impl = std::make_unique<Impl>();
   impl->urdf = urdf::parseURDF(urdf_xml);  // urdfdom reports details on its console log

@@ -623,14 +623,17 @@ std::optional<TrackResult> Tracker::Impl::ConfirmCandidate(Step& st) {
   LogMeasurement("candidate", c);
   const bool holds = candidate_bar == Bar::kAtLeastAsGood ? AtLeastAsGood(st, c)
                                                           : ClearlyBetter(st, c, candidate_bar == Bar::kClearlyBetterJumpView);
-  if (holds && candidate->Update(PoseToState(c.T_world_base), c.covariance, st.frame.time_s, false) ==
-                   FilterVerdict::kAccepted) {
+  const FilterVerdict verdict =
+      holds ? candidate->Update(PoseToState(c.T_world_base), c.covariance, st.frame.time_s, false) : FilterVerdict::kRejected;
+  if (verdict == FilterVerdict::kAccepted) {
     if (++candidate_frames >= s.confirm_frames) {
       spdlog::info("tracker: re-referenced after {} frames agreeing {:.2f} against the filter's {:.2f}", candidate_frames,
                    c.support, st.explained);
       return AdoptCandidate(st, c);
     }
   } else {
+    spdlog::debug("tracker: candidate dropped after {} frames: {}", candidate_frames,
+                  holds ? "its fit left its own gate" : "it no longer explains the frame better than the filter");
     candidate.reset();
   }
   return std::nullopt;

@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <vector>
 
 namespace arref::server {
 
@@ -14,10 +15,11 @@ void MappingMotion::Add(const std::string& robot_id, const JointValues& joints) 
 
 JointRanges MappingMotion::For(const std::string& robot_id, const RobotModel& model) const {
   JointRanges merged;
+  const std::vector<JointInfo> joints = model.ActuatedJoints();
   for (const std::string& id : {robot_id, std::string()}) {
     const auto it = ranges_.find(id);
     if (it == ranges_.end()) continue;
-    for (const JointInfo& joint : model.ActuatedJoints())
+    for (const JointInfo& joint : joints)
       if (const auto range = it->second.find(joint.name); range != it->second.end())
         WidenRange(merged, joint.name, range->second.first, range->second.second);
     if (robot_id.empty()) break;

@@ -176,8 +176,8 @@ TEST(RobotModel, TextThatIsNotUtf8IsRefusedNamingTheByte) {
         << bad.status().message();
     EXPECT_NE(bad.status().message().find("UTF-8"), std::string::npos) << bad.status().message();
   }
-  std::string latin1 = xml;
-  latin1[latin1.find("\xC3\xA4")] = '\xE4';  // "ä" saved as Latin-1: E4 then a space
+  const std::size_t umlaut = xml.find("\xC3\xA4");
+  const std::string latin1 = xml.substr(0, umlaut) + '\xE4' + xml.substr(umlaut + 2);  // "ä" as Latin-1: E4, a space
   EXPECT_FALSE(RobotModel::FromString(latin1, "/tmp").ok());
 
   std::string with_nul = xml;

@@ -7,6 +7,8 @@
 #include <memory>
 #include <numbers>
 #include <optional>
+#include <string>
+#include <utility>
 #include <vector>
 
 #include "arref/fusion/raycaster.h"
@@ -437,6 +439,67 @@ TEST(TrackSimulator, SaysHowMuchOfTheArmPropsHide) {
   EXPECT_GT(bare.front(), cell.front());
   EXPECT_GE(bare[bare.size() / 2], 0.85) << "the median frame of a bare cell shows nearly all of the arm";
   EXPECT_LT(cell[cell.size() / 2], bare[bare.size() / 2]);
+}
+
+// Flying pixels change only pixels on the clean frame's depth edges, each to a depth between its
+// own and a neighbour's; the rest of the frame (noise, dropouts) stays as it was. A pose latency
+// moves the reported camera pose by the head's motion and leaves the depth alone.
+TEST(TrackSimulator, DeviceEffectsFlyingPixelsOnEdgesAndALatePose) {
+  auto robot = Builtin();
+  auto FrameAt = [&](const sim::TrackSimOptions& options, int index) {
+    auto simulator = sim::TrackSimulator::Create(robot, options, 7);
+    EXPECT_TRUE(simulator.ok()) << simulator.status().ToString();
+    Result<sim::SimFrame> f = Status::Internal("no frame");
+    for (int i = 0; simulator.ok() && i <= index; ++i) f = simulator->Next();
+    EXPECT_TRUE(f.ok()) << f.status().ToString();
+    return f.ok() ? *f : sim::SimFrame{};
+  };
+  sim::TrackSimOptions options;
+  options.duration_s = 2.0;
+  const sim::SimFrame clean = FrameAt(options, 20);
+  options.flying_pixel_rate = 1.0;
+  const sim::SimFrame flying = FrameAt(options, 20);
+  const DepthFrame& a = clean.frame;
+  const DepthFrame& b = flying.frame;
+  ASSERT_EQ(a.depth_mm.size(), b.depth_mm.size());
+  ASSERT_GT(a.depth_mm.size(), 0u);
+  EXPECT_TRUE(a.T_world_camera.isApprox(b.T_world_camera));
+  const int w = a.intrinsics.width, h = a.intrinsics.height;
+  int changed = 0, between = 0;
+  for (int v = 1; v + 1 < h; ++v)
+    for (int u = 1; u + 1 < w; ++u) {
+      const float d0 = a.DepthAt(u, v), d1 = b.DepthAt(u, v);
+      if (d0 == d1) continue;
+      ++changed;
+      ASSERT_GT(d0, 0.0f) << "a pixel without a return gained one at " << u << "," << v;
+      // The noise is 1 % of the depth: a mixed depth lies between the two sides within a few of it.
+      const float slack = 0.05f * std::max(d0, d1);
+      bool ok = false;
+      for (const auto& [du, dv] : {std::pair{1, 0}, {-1, 0}, {0, 1}, {0, -1}}) {
+        const float dn = a.DepthAt(u + du, v + dv);
+        if (dn > 0 && d1 >= std::min(d0, dn) - slack && d1 <= std::max(d0, dn) + slack && std::abs(dn - d0) > 0.03f) ok = true;
+      }
+      between += ok;
+    }
+  EXPECT_GT(changed, 100) << "every edge pixel flies at rate 1";
+  EXPECT_LT(changed, w * h / 10) << "only edge pixels fly";
+  EXPECT_GE(between, changed * 97 / 100) << between << " of " << changed << " changed pixels lie between an edge's sides";
+
+  options.flying_pixel_rate = 0.0;
+  options.pose_latency_s = 0.1;
+  const sim::SimFrame late = FrameAt(options, 20);
+  EXPECT_EQ(late.frame.depth_mm, a.depth_mm);
+  const double moved = (late.frame.T_world_camera.translation() - a.T_world_camera.translation()).norm();
+  EXPECT_GT(moved, 0.005) << "0.1 s of a walk at 0.5 m/s";
+  EXPECT_LT(moved, 0.2);
+
+  options.pose_latency_s = 2.0;
+  EXPECT_FALSE(sim::TrackSimulator::Create(robot, options, 7).ok());
+  options.pose_latency_s = 0.0;
+  options.flying_pixel_rate = 1.5;
+  const auto bad = sim::TrackSimulator::Create(robot, options, 7);
+  ASSERT_FALSE(bad.ok());
+  EXPECT_NE(bad.status().ToString().find("flying pixel rate 1.5"), std::string::npos) << bad.status().ToString();
 }
 
 TEST(Tracker, UnwrapsAhatDepth) {

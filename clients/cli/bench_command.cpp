@@ -256,6 +256,12 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
       ->check(CLI::Range(1.0, 60.0))->capture_default_str();
   cmd->add_option("--track-long-streams", args->track.long_streams, "Track: long streams per robot (seeds)")
       ->check(CLI::Range(1, 100))->capture_default_str();
+  cmd->add_option("--track-flying-pixels", args->track.flying_pixel_rate,
+                  "Track: share of the pixels on depth edges that return a depth between the edge's sides (0: none)")
+      ->check(CLI::Range(0.0, 1.0))->capture_default_str();
+  cmd->add_option("--track-pose-latency-ms", args->track.pose_latency_ms,
+                  "Track: the camera pose is head tracking's this long after the exposure (ms; 0: at it)")
+      ->check(CLI::Range(-1000.0, 1000.0))->capture_default_str();
   cmd->callback([args, exit_code, cmd] {
     args->command_line = "arref bench";
     for (const auto& o : cmd->get_options())

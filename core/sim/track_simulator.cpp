@@ -20,7 +20,7 @@ constexpr double kAhatWrapM = 1.0;     // AHAT's phase wraps about here (HoloLen
 constexpr double kAhatMaxRangeM = 3.0;
 
 // Independent random streams of one simulation: adding draws to one leaves the others alone.
-enum Stream : std::uint64_t { kKnots = 1, kLayout, kWorld, kDrift, kJump, kNoise, kNetwork, kStamps };
+enum Stream : std::uint64_t { kKnots = 1, kLayout, kWorld, kDrift, kJump, kNoise, kNetwork, kStamps, kFlying };
 std::mt19937_64 StreamRng(std::uint64_t seed, Stream s) {
   std::seed_seq seq{seed, static_cast<std::uint64_t>(s), std::uint64_t{0x7472616b}};
   return std::mt19937_64(seq);
@@ -52,12 +52,37 @@ struct TrackSimulator::Impl {
   Iso3 jump = Iso3::Identity();
   double jump_time_s = std::numeric_limits<double>::infinity();
   int frames = 0, next = 0;
-  std::mt19937_64 drift_rng, noise_rng, network_rng;
+  std::mt19937_64 drift_rng, noise_rng, network_rng, flying_rng;
 
   double FrameTime(int i) const { return i / o.fps; }
   JointValues Joints(double t) const;
   Iso3 T_cell_camera(double t) const;
+  std::vector<double> WithFlyingPixels(const std::vector<double>& z);
 };
+
+// A time-of-flight pixel whose footprint straddles a depth edge sums the returns of both
+// surfaces and reads a depth between them: for each pixel on an edge (its 4-neighbour with the
+// largest step, where both have a return), with probability flying_pixel_rate, a depth drawn
+// uniformly between the two.
+std::vector<double> TrackSimulator::Impl::WithFlyingPixels(const std::vector<double>& z) {
+  const int w = intrinsics.width, h = intrinsics.height;
+  std::uniform_real_distribution<double> u01(0.0, 1.0);
+  std::vector<double> out = z;
+  for (int v = 0; v < h; ++v)
+    for (int u = 0; u < w; ++u) {
+      const std::size_t p = static_cast<std::size_t>(v) * w + u;
+      if (z[p] <= 0) continue;
+      double step = 0.0;
+      for (const auto& [du, dv] : {std::pair{1, 0}, {-1, 0}, {0, 1}, {0, -1}}) {
+        const int nu = u + du, nv = v + dv;
+        if (nu < 0 || nv < 0 || nu >= w || nv >= h) continue;
+        const double zn = z[static_cast<std::size_t>(nv) * w + nu];
+        if (zn > 0 && std::abs(zn - z[p]) > std::abs(step)) step = zn - z[p];
+      }
+      if (std::abs(step) > o.flying_edge_m && u01(flying_rng) < o.flying_pixel_rate) out[p] = z[p] + u01(flying_rng) * step;
+    }
+  return out;
+}
 
 JointValues TrackSimulator::Impl::Joints(double t) const {
   const double k = std::clamp(t / o.knot_interval_s, 0.0, static_cast<double>(knots.size() - 1) - 1e-9);
@@ -103,6 +128,11 @@ Result<TrackSimulator> TrackSimulator::Create(std::shared_ptr<const RobotModel> 
   if (!(o.duration_s > 0) || !(o.knot_interval_s > 0) || !(o.max_joint_speed_rad_s > 0) || !(o.joint_rate_hz > 0))
     return Status::InvalidArgument("track simulator: duration, knot interval, joint speed and rate must be > 0");
   if (o.jump_at_s < 0) o.jump_at_s = 0.5 * o.duration_s;
+  if (!(o.flying_pixel_rate >= 0 && o.flying_pixel_rate <= 1) || !(o.flying_edge_m > 0))
+    return Status::InvalidArgument(fmt::format("track simulator: flying pixel rate {} is outside [0, 1] or edge {} m is not > 0",
+                                               o.flying_pixel_rate, o.flying_edge_m));
+  if (!(std::abs(o.pose_latency_s) <= 1.0))
+    return Status::InvalidArgument(fmt::format("track simulator: pose latency {} s is outside [-1, 1] s", o.pose_latency_s));
 
   ARREF_ASSIGN_OR_RETURN(ModelCaster caster, ModelCaster::Create(*robot));
   CellOptions cell_options = o.cell;
@@ -156,6 +186,7 @@ Result<TrackSimulator> TrackSimulator::Create(std::shared_ptr<const RobotModel> 
   I.drift_rng = StreamRng(rng_seed, kDrift);
   I.noise_rng = StreamRng(rng_seed, kNoise);
   I.network_rng = StreamRng(rng_seed, kNetwork);
+  I.flying_rng = StreamRng(rng_seed, kFlying);
   spdlog::debug("track sim: {} frames of {}, jump {:.2f} m {:.1f} deg at {:.1f} s", I.frames, FrameKindName(o.kind),
                 jump_m, jump_deg, o.jump_at_s);
   return TrackSimulator(std::move(impl));
@@ -202,8 +233,7 @@ Result<SimFrame> TrackSimulator::Next() {
   f.intrinsics = c;
   f.wrap_m = I.o.kind == FrameKind::kAhat ? kAhatWrapM : 0.0;
   f.depth_mm.assign(static_cast<std::size_t>(c.width) * c.height, 0);
-  std::normal_distribution<double> noise(0.0, 1.0);
-  std::uniform_real_distribution<double> u01(0.0, 1.0);
+  std::vector<double> z_true(f.depth_mm.size(), 0.0);
   std::size_t robot_pixels = 0, robot_seen = 0;
   for (int v = 0; v < c.height; ++v)
     for (int u = 0; u < c.width; ++u) {
@@ -213,19 +243,28 @@ Result<SimFrame> TrackSimulator::Next() {
         ++robot_pixels;
         if (z <= 0 || robot.z_depth[p] < z) z = robot.z_depth[p], ++robot_seen;
       }
-      if (z <= 0 || u01(I.noise_rng) < I.o.dropout) continue;
-      z += (I.o.depth_noise_fraction * z + I.o.depth_noise_floor_m) * noise(I.noise_rng);
-      if (f.wrap_m > 0) z = std::fmod(z, f.wrap_m);
-      f.depth_mm[p] = static_cast<std::uint16_t>(std::clamp(std::round(1000 * z), 0.0, 65535.0));
+      z_true[p] = z;
     }
   out.robot_visible_fraction = robot_pixels > 0 ? static_cast<double>(robot_seen) / static_cast<double>(robot_pixels) : 0.0;
+  // Flying pixels draw from their own stream, so the noise and dropouts of a frame stay the same
+  // with them or without.
+  const std::vector<double> z_seen = I.o.flying_pixel_rate > 0 ? I.WithFlyingPixels(z_true) : std::move(z_true);
+  std::normal_distribution<double> noise(0.0, 1.0);
+  std::uniform_real_distribution<double> u01(0.0, 1.0);
+  for (std::size_t p = 0; p < z_seen.size(); ++p) {
+    double z = z_seen[p];
+    if (z <= 0 || u01(I.noise_rng) < I.o.dropout) continue;
+    z += (I.o.depth_noise_fraction * z + I.o.depth_noise_floor_m) * noise(I.noise_rng);
+    if (f.wrap_m > 0) z = std::fmod(z, f.wrap_m);
+    f.depth_mm[p] = static_cast<std::uint16_t>(std::clamp(std::round(1000 * z), 0.0, 65535.0));
+  }
   const Iso3 T_world_cell = I.drift * I.T_world0_cell;
   std::normal_distribution<double> jm(0.0, I.o.pose_jitter_m), jr(0.0, I.o.pose_jitter_deg * kDeg);
   const Vec3 axis_angle(jr(I.noise_rng), jr(I.noise_rng), jr(I.noise_rng));
   Iso3 jitter = Iso3::Identity();
   if (axis_angle.norm() > 0) jitter.linear() = Eigen::AngleAxisd(axis_angle.norm(), axis_angle.normalized()).toRotationMatrix();
   jitter.translation() = Vec3(jm(I.noise_rng), jm(I.noise_rng), jm(I.noise_rng));
-  f.T_world_camera = T_world_cell * T_cell_cam * jitter;
+  f.T_world_camera = T_world_cell * I.T_cell_camera(t + I.o.pose_latency_s) * jitter;
   out.T_world_base_true = T_world_cell * I.cell.T_cell_base;
   return out;
 }

@@ -63,6 +63,10 @@ struct TrackConfig {
   double long_minutes = 10.0; // the long stream (0: none)
   double long_fps = 5.0;      // at the long-throw camera's real rate, to keep it affordable
   int long_streams = 1;       // long streams per robot, each from a seed of its own
+  // What a real device adds that the default streams leave out (sim::TrackSimOptions): mixed
+  // pixels on depth edges, and a camera pose stamped off the exposure.
+  double flying_pixel_rate = 0.0;
+  double pose_latency_ms = 0.0;
 };
 
 struct Config {

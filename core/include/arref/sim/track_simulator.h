@@ -49,10 +49,18 @@ struct TrackSimOptions {
   double depth_noise_fraction = 0.0;  // sigma as a fraction of depth; 0: 1 % long-throw, 0.3 % AHAT
   double depth_noise_floor_m = 0.0;   // added sigma; 0: none long-throw, 2 mm AHAT
   double dropout = 0.02;              // pixels with no return
+  // Mixed ("flying") pixels of a time-of-flight camera: a pixel on a depth edge (a 4-neighbour
+  // more than flying_edge_m nearer or farther) returns, with this probability, a depth drawn
+  // uniformly between its own and that neighbour's. 0: none (the simulator's default).
+  double flying_pixel_rate = 0.0;
+  double flying_edge_m = 0.05;
   // Per-frame error of the camera pose the headset reports (not part of the truth: the
   // headset's world is where its tracking puts it on average), as the mapping simulator's.
   double pose_jitter_m = 0.004;
   double pose_jitter_deg = 0.3;
+  // The reported camera pose is head tracking's at exposure plus this (s): a device whose pose
+  // and depth stamps disagree. 0: none (the simulator's default).
+  double pose_latency_s = 0.0;
   // Head-tracking drift of the headset's world (random walk per sqrt(s)) and one jump.
   double drift_m_per_sqrt_s = 0.0015;
   double drift_deg_per_sqrt_s = 0.03;

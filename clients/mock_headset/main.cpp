@@ -107,6 +107,13 @@ void AddFlags(CLI::App& app, Args& a) {
       ->check(CLI::Range(1.0, 3600.0))->capture_default_str();
   app.add_option("--track-burst", a.track_options.burst, "--track: frames sent at once (to see drops)")
       ->check(CLI::Range(1, 1000))->capture_default_str();
+  app.add_option("--track-flying-pixels", a.track_options.flying_pixel_rate,
+                 "--track: share of the pixels on depth edges that return a depth between the edge's sides")
+      ->check(CLI::Range(0.0, 1.0))->capture_default_str();
+  app.add_option_function<double>(
+         "--track-pose-latency-ms", [&a](double ms) { a.track_options.pose_latency_s = ms / 1000.0; },
+         "--track: the camera pose sent is head tracking's this long after the exposure (ms)")
+      ->check(CLI::Range(-1000.0, 1000.0));
   app.add_option("--log-level", a.log_level, "trace, debug, info, warn, error")->capture_default_str();
 }
 

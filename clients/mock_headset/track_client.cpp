@@ -89,6 +89,8 @@ TrackHeadsetRun RunTrackingHeadset(const TrackHeadsetOptions& o) {
   so.duration_s = o.duration_s;
   so.jump_at_s = o.jump_at_s;
   so.sender_clock_offset_s = 0.0;  // the peers' clocks below carry the offsets
+  so.flying_pixel_rate = o.flying_pixel_rate;
+  so.pose_latency_s = o.pose_latency_s;
   auto simulator = sim::TrackSimulator::Create(robot, so, o.rng_seed);
   if (!simulator.ok()) return fail(simulator.status());
   out.jump_time_s = simulator->jump_time_s();

@@ -24,6 +24,9 @@ struct TrackHeadsetOptions {
   // Frames sent this many at once (the rest of the time the stream is real time): a burst
   // arrives faster than the server processes it, so all but the newest are dropped.
   int burst = 1;
+  // A real device's effects (sim::TrackSimOptions): mixed pixels on depth edges, a late pose.
+  double flying_pixel_rate = 0.0;
+  double pose_latency_s = 0.0;
   double headset_clock_offset_s = 12.5;   // the headset's clock runs this far ahead of the machine's
   double sender_clock_offset_s = -0.73;   // the joint sender's
   bool subscriber = true;           // a third session subscribes to the robot's updates

@@ -23,6 +23,7 @@
 #include "arref/sim/cell_simulator.h"
 #include "arref/scene/spatial_mesh.h"
 #include "arref/fusion/tracking_error.h"
+#include "arref/fusion/tsdf.h"
 
 namespace arref {
 namespace {
@@ -186,6 +187,15 @@ void BM_ExpectedInContext(benchmark::State& state) {
   for (auto _ : state) benchmark::DoNotOptimize(f.robot->ExpectedInContext(f.voxel_m, 0, f.cropped, f.T_world_base));
 }
 
+// Which voxels of the refit's volume lie in the band round the robot (VoxelRows): made per
+// volume, so per request, and paid out of what fusing only those voxels saves.
+void BM_BandVoxelRows(benchmark::State& state) {
+  const Fixture& f = Cell();
+  const std::vector<Vec3f> robot = SampleSurface(*f.model_robot->PosedMesh(f.joints), 20000, 1).points;
+  const double margin = std::max(3 * f.voxel_m, 0.05) + 2 * f.voxel_m;
+  for (auto _ : state) benchmark::DoNotOptimize(VoxelRows::Of(robot, f.voxel_m, margin + f.voxel_m));
+}
+
 // The last polish's weights (tracking_error.h) for its 5,000 points from the refit's 24 eyes.
 void BM_TrackingErrorWeights(benchmark::State& state) {
   const Fixture& f = Cell();
@@ -231,6 +241,7 @@ BENCHMARK(BM_CancelLatency)->Arg(5)->Arg(30)->Arg(80)->Arg(150)->UseManualTime()
 BENCHMARK(BM_NewJointState)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_NewJointStateOneByOne)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ExpectedInContext)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_BandVoxelRows)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_TrackingErrorWeights)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ArrefIteration)->ArgsProduct({{2000, 5000}, {1, 2}, {0, 1}})->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ArrefTenIterations)->ArgsProduct({{2000, 5000}, {1, 2}})->Unit(benchmark::kMillisecond);

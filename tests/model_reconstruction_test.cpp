@@ -3,7 +3,10 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <iostream>
 #include <numbers>
+#include <string>
+#include <utility>
 
 #include "arref/fusion/model_reconstruction.h"
 #include "arref/pipeline/pipeline.h"
@@ -12,6 +15,7 @@
 #include "arref/robot/robot_model.h"
 #include "arref/scene/sampling.h"
 #include "arref/fusion/tsdf.h"
+#include "arref/scene/nearest_neighbor.h"
 #include "test_support.h"
 
 namespace arref {
@@ -327,6 +331,109 @@ TEST(ExpectedSurface, PixelsOffTheBandChangeNothing) {
   for (const TsdfVolume* other : {&masked, &unaided}) {
     EXPECT_EQ(other->block_count(), all.block_count());
     ExpectSameMesh(a, *other);
+  }
+}
+
+// VoxelRows is a superset of the voxels within its radius of the points, and not much more:
+// every row it leaves out has no voxel within the radius, and every row it keeps has one within
+// the radius and a voxel's diagonal (each point counts as the centre of its voxel).
+TEST(VoxelRows, HoldEveryVoxelWithinTheRadiusAndLittleMore) {
+  const double voxel = 0.03, radius = 0.12;
+  std::vector<Vec3f> points = SampleSurface(Box(0.3f, 0.2f, 0.5f), 3000, 2).points;
+  points.push_back(Vec3f(-0.9f, 0.7f, -0.35f));  // a lone point, in negative blocks
+  const VoxelRows rows = VoxelRows::Of(points, voxel, radius);
+  const PointIndex index(points);
+  const int B = TsdfVolume::kBlock;
+  std::size_t kept = 0, left = 0;
+  for (int bz = -3; bz <= 3; ++bz)
+    for (int by = -4; by <= 4; ++by)
+      for (int bx = -5; bx <= 3; ++bx) {
+        const std::uint64_t mask = rows.RowsOf(Eigen::Vector3i(bx, by, bz));
+        for (int z = 0; z < B; ++z)
+          for (int y = 0; y < B; ++y) {
+            double nearest = 1e9;  // of the row's voxel centres
+            for (int x = 0; x < B; ++x) {
+              const Vec3f c = (Eigen::Vector3i(bx * B + x, by * B + y, bz * B + z).cast<double>() * voxel).cast<float>();
+              std::uint32_t i;
+              float sq;
+              if (index.Nearest(c, &i, &sq)) nearest = std::min(nearest, std::sqrt(static_cast<double>(sq)));
+            }
+            const bool on = mask >> (y + B * z) & 1;
+            (on ? kept : left) += 1;
+            if (!on) {
+              ASSERT_GT(nearest, radius) << "block " << bx << " " << by << " " << bz << " row " << y << " " << z;
+            } else {
+              ASSERT_LE(nearest, radius + std::sqrt(3.0) * voxel + 1e-6) << "a row kept far from every point";
+            }
+          }
+      }
+  EXPECT_GT(kept, 1000u);
+  EXPECT_GT(left, kept) << "most of the region is beyond the radius";
+  EXPECT_EQ(rows.RowsOf(Eigen::Vector3i(40, 0, 0)), 0u) << "a block beyond the points' bounds";
+  EXPECT_EQ(VoxelRows::Of({}, voxel, radius).RowsOf(Eigen::Vector3i::Zero()), 0u);
+}
+
+// A volume kept to the band's voxels (near_voxels_only) fuses them as the whole blocks do: each
+// of its vertices is one of the whole blocks' mesh, bit for bit, and so is each of theirs within
+// the band (a vertex's cell then lies inside the rows kept). Only farther off, where other
+// objects cross the blocks, does it mesh less. Eyes all round the built-in robot and a vendor arm
+// (when ../shared is there), with a table, a floor and a far wall.
+TEST(ExpectedSurface, BandVoxelsFuseAsTheWholeBlocksDo) {
+  std::vector<std::pair<std::string, RobotLoadOptions>> urdfs = {{testing::BuiltinRobotUrdf(), {}}};
+  if (testing::HaveShared())
+    urdfs.push_back({testing::SharedDir() + "/robots/motoman_mh5_support/urdf/mh5.urdf",
+                     RobotLoadOptions{.package_path = {testing::SharedDir() + "/robots"}}});
+  else
+    std::cerr << "../shared/robots not found at " << testing::SharedDir() << ": the built-in robot only\n";
+  for (const auto& [urdf, load] : urdfs) {
+    auto robot_model = RobotModel::Load(urdf, load);
+    ASSERT_TRUE(robot_model.ok()) << robot_model.status().ToString();
+    auto posed = robot_model->PosedMesh({});
+    ASSERT_TRUE(posed.ok()) << posed.status().ToString();
+    TriangleMesh scene = *posed;
+    TriangleMesh floor = Box(6.0f, 6.0f, 0.01f);
+    floor.Transform(Iso3(Eigen::Translation3d(0, 0, -0.01)));
+    TriangleMesh wall = Box(0.1f, 4.0f, 2.0f);
+    wall.Transform(Iso3(Eigen::Translation3d(-1.2, 0, 0)));
+    for (const TriangleMesh& m : {floor, TableInFront(), wall}) scene.Append(m);
+    auto caster = RayCaster::Create(scene);
+    ASSERT_TRUE(caster.ok()) << caster.status().ToString();
+    const std::vector<Vec3f> robot = SampleSurface(*posed, 20000, 1).points;
+    const Aabb box = BoundsOf(posed->vertices);
+    TsdfOptions whole = BandRoundRobot(&robot);
+    whole.crop_center = ((box.min + box.max) / 2).cast<double>();
+    whole.crop_radius_m = 0.5 * (box.max - box.min).norm() + 2 * whole.truncation_m;
+    TsdfOptions band = whole;
+    band.near_voxels_only = true;
+    TsdfVolume a(whole), b(band);
+    const PinholeCamera camera = PinholeCamera::FromFov(120, 108, 75);
+    for (int eye = 0; eye < 24; ++eye) {
+      const double azimuth = 2 * std::numbers::pi * eye / 24;
+      const Iso3 T = LookAt(Vec3(1.9 * std::cos(azimuth), 1.9 * std::sin(azimuth), 1.65), whole.crop_center);
+      std::vector<float> incidence;
+      const RangeImage range = caster->Render(camera, T, 8.0, &incidence);
+      ASSERT_TRUE(a.Integrate(camera, T, range, incidence).ok());
+      ASSERT_TRUE(b.Integrate(camera, T, range, incidence).ok());
+    }
+    ASSERT_EQ(a.block_count(), b.block_count()) << urdf << ": the same blocks, fewer voxels in them";
+    const TriangleMesh ma = a.ExtractMesh(), mb = b.ExtractMesh();
+    const PointIndex in_a(ma.vertices), in_b(mb.vertices), near_robot(robot);
+    for (const Vec3f& v : mb.vertices) {
+      std::uint32_t i;
+      float sq;
+      ASSERT_TRUE(in_a.Nearest(v, &i, &sq) && sq == 0.0f) << urdf << ": a vertex the whole blocks lack " << v.transpose();
+    }
+    const float inside = static_cast<float>(whole.near_margin_m - whole.voxel_m);
+    std::size_t in_band = 0;
+    for (const Vec3f& v : ma.vertices) {
+      if (!near_robot.AnyWithin(v, inside * inside)) continue;
+      ++in_band;
+      std::uint32_t i;
+      float sq;
+      ASSERT_TRUE(in_b.Nearest(v, &i, &sq) && sq == 0.0f) << urdf << ": a vertex of the band lost " << v.transpose();
+    }
+    EXPECT_GT(in_band, 500u) << urdf;
+    EXPECT_LT(mb.vertices.size(), ma.vertices.size()) << urdf << ": the table and the wall cross blocks beyond the band";
   }
 }
 

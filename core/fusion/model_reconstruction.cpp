@@ -87,6 +87,9 @@ TsdfOptions ExpectedSurfaceMaker::Volume(const ReconstructionOptions& o) const {
   // cell beyond needs one voxel more. The floor and objects farther off cost time, change nothing.
   tsdf.near_points = &parts_->robot.points();
   tsdf.near_margin_m = tsdf.truncation_m + 2 * o.voxel_m;
+  // Of those blocks, only the band's voxels (VoxelRows): about half of theirs round a robot's
+  // links, the same shell (test ExpectedSurface.BandVoxelsFuseAsTheWholeBlocksDo).
+  tsdf.near_voxels_only = true;
   tsdf.single_precision = true;  // made per request: the speed counts, and no simulator must match it
   return tsdf;
 }

@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
+#include <memory>
 #include <string>
 #include <unordered_set>
 
@@ -23,6 +24,12 @@ constexpr int kKeyBias = 1 << 20;
 constexpr float kMaxWeight = 64.0f;
 
 int LocalIndex(int x, int y, int z) { return x + B * (y + B * z); }
+
+// 21 bits per axis: +-2^20 blocks or voxels.
+std::uint64_t PackedKey(const Eigen::Vector3i& b) {
+  const auto k = [](int v) { return static_cast<std::uint64_t>(v + kKeyBias) & 0x1FFFFF; };
+  return (k(b.x()) << 42) | (k(b.y()) << 21) | k(b.z());
+}
 
 int FloorDiv(int a, int b) { return a >= 0 ? a / b : -((-a + b - 1) / b); }
 
@@ -86,6 +93,10 @@ struct RowOfVoxels {
 TsdfVolume::TsdfVolume(const TsdfOptions& options) : options_(options) {
   near_only_ = options.near_points != nullptr;
   if (near_only_) MarkNearBlocks(*options.near_points);
+  if (near_only_ && options.near_voxels_only)
+    near_rows_ = std::make_shared<const VoxelRows>(
+        VoxelRows::Of(*options.near_points, options.voxel_m, options.near_margin_m + options.voxel_m));
+
   options_.near_points = nullptr;
 }
 
@@ -177,10 +188,7 @@ bool TsdfVolume::WouldAllocate(const Eigen::Vector3i& b) const {
   return at >= 0 && near_.slot[at] == Near::kFree;
 }
 
-TsdfVolume::Key TsdfVolume::KeyOf(const Eigen::Vector3i& b) {
-  const auto k = [](int v) { return static_cast<std::uint64_t>(v + kKeyBias) & 0x1FFFFF; };
-  return (k(b.x()) << 42) | (k(b.y()) << 21) | k(b.z());
-}
+TsdfVolume::Key TsdfVolume::KeyOf(const Eigen::Vector3i& b) { return PackedKey(b); }
 
 Eigen::Vector3i TsdfVolume::BlockOf(const Vec3& p, double voxel_m) {
   Eigen::Vector3i b;
@@ -279,6 +287,7 @@ Status TsdfVolume::Allocate(const std::vector<Eigen::Vector3i>& band) {
     if (near_only_) near_.slot[near_.Offset(b)] = Near::kAllocated;
     index_.emplace(KeyOf(b), static_cast<int>(blocks_.size()));
     blocks_.push_back(Block{b, std::vector<Voxel>(kVoxelsPerBlock)});
+    if (near_rows_) blocks_.back().rows = near_rows_->RowsOf(b);
   }
   return Status::Ok();
 }
@@ -316,6 +325,7 @@ void TsdfVolume::UpdateVoxelsFast(Block& block, const PinholeCamera& camera, con
   const float trunc = static_cast<float>(options_.truncation_m), inv_trunc = 1.0f / trunc;
   for (int z = 0; z < B; ++z)
     for (int y = 0; y < B; ++y) {
+      if (!(block.rows >> (y + B * z) & 1)) continue;
       const Vec3f row = origin + step.col(1) * static_cast<float>(y) + step.col(2) * static_cast<float>(z);
       // The row's projections and distances, four voxels at a time (RowOfVoxels); the same
       // IEEE operations in the same order as one at a time, so the same bits.
@@ -359,7 +369,8 @@ void TsdfVolume::UpdateVoxels(Block& block, const PinholeCamera& camera, const E
   using Vec = Eigen::Matrix<Scalar, 3, 1>;
   const auto trunc = static_cast<Scalar>(options_.truncation_m);
   for (int z = 0; z < B; ++z)
-    for (int y = 0; y < B; ++y)
+    for (int y = 0; y < B; ++y) {
+      if (!(block.rows >> (y + B * z) & 1)) continue;
       for (int x = 0; x < B; ++x) {
         const Vec p = origin + step * Vec(x, y, z);
         const int pixel = camera.PixelOf(p);
@@ -372,6 +383,7 @@ void TsdfVolume::UpdateVoxels(Block& block, const PinholeCamera& camera, const E
         vox.d = (vox.d * vox.w + d) / (vox.w + 1.0f);
         vox.w = std::min(vox.w + 1.0f, kMaxWeight);
       }
+    }
 }
 
 std::vector<TsdfVolume::NeighbourTable> TsdfVolume::Neighbours() const {
@@ -490,6 +502,79 @@ TriangleMesh TsdfVolume::ExtractMesh() const {
   spdlog::debug("sim: surface nets over {} blocks: {} vertices, {} triangles", n, mesh.vertices.size(),
                 mesh.triangles.size());
   return mesh;
+}
+
+// Each point is taken as the centre of its voxel, the radius grown by half the voxel's diagonal.
+// The ball round a voxel is one pattern of rows: row (dy, dz) off it holds the voxels up to
+// half_width(dy, dz) from its x. So the points' voxels are marked as bit rows along x (one per
+// (y, z) of a block-aligned grid), each marked row is widened once per half width, and ORed into
+// the rows the pattern reaches: word operations per marked row, not per voxel or point. Then
+// each block's eight bits of a row are read out.
+VoxelRows VoxelRows::Of(const std::vector<Vec3f>& points, double voxel_m, double radius_m) {
+  static_assert(64 % B == 0, "a block's bits of a row must lie in one word");
+  VoxelRows out;
+  if (points.empty() || !(voxel_m > 0) || !(radius_m >= 0)) return out;
+  const double r = radius_m / voxel_m + 0.5 * std::sqrt(3.0);
+  const int reach = static_cast<int>(std::floor(r));
+  std::vector<Eigen::Vector3i> voxels(points.size());
+  for (std::size_t k = 0; k < points.size(); ++k)
+    for (int a = 0; a < 3; ++a) voxels[k][a] = static_cast<int>(std::lround(points[k][a] / voxel_m));
+  Eigen::Vector3i lo = voxels.front(), hi = lo;
+  for (const Eigen::Vector3i& v : voxels) lo = lo.cwiseMin(v), hi = hi.cwiseMax(v);
+  for (int a = 0; a < 3; ++a) {
+    out.lo_[a] = FloorDiv(lo[a] - reach, B);
+    out.dims_[a] = FloorDiv(hi[a] + reach, B) - out.lo_[a] + 1;
+  }
+  const Eigen::Vector3i first = out.lo_ * B, size = out.dims_ * B;  // the grid, in voxels
+  const std::size_t words = (static_cast<std::size_t>(size.x()) + 63) / 64;
+  const auto line = [&](std::vector<std::uint64_t>& bits, int y, int z) {
+    return &bits[words * (static_cast<std::size_t>(y) + static_cast<std::size_t>(size.y()) * z)];
+  };
+  std::vector<std::uint64_t> marked(words * size.y() * size.z(), 0), near(marked.size(), 0);
+  std::vector<Eigen::Vector2i> marked_rows;  // (y, z)
+  for (const Eigen::Vector3i& v : voxels) {
+    const Eigen::Vector3i g = v - first;
+    std::uint64_t* row = line(marked, g.y(), g.z());
+    if (std::all_of(row, row + words, [](std::uint64_t w) { return w == 0; })) marked_rows.emplace_back(g.y(), g.z());
+    row[g.x() / 64] |= std::uint64_t{1} << (g.x() % 64);
+  }
+  // widened[w]: a marked row with each bit spread w voxels either way (the grid's margin of
+  // `reach` voxels keeps every spread bit inside it).
+  std::vector<std::vector<std::uint64_t>> widened(static_cast<std::size_t>(reach) + 1, std::vector<std::uint64_t>(words));
+  for (const Eigen::Vector2i& m : marked_rows) {
+    const std::uint64_t* source = line(marked, m.x(), m.y());
+    widened[0].assign(source, source + words);
+    for (int w = 1; w <= reach; ++w) {
+      const std::vector<std::uint64_t>& a = widened[static_cast<std::size_t>(w) - 1];
+      for (std::size_t k = 0; k < words; ++k)
+        widened[static_cast<std::size_t>(w)][k] = a[k] | a[k] << 1 | (k > 0 ? a[k - 1] >> 63 : 0) | a[k] >> 1 |
+                                                   (k + 1 < words ? a[k + 1] << 63 : 0);
+    }
+    for (int dz = -reach; dz <= reach; ++dz)
+      for (int dy = -reach; dy <= reach; ++dy) {
+        const double left = r * r - dy * dy - dz * dz;
+        if (left < 0) continue;
+        const auto& spread = widened[static_cast<std::size_t>(std::floor(std::sqrt(left)))];
+        std::uint64_t* target = line(near, m.x() + dy, m.y() + dz);
+        for (std::size_t k = 0; k < words; ++k) target[k] |= spread[k];
+      }
+  }
+  out.rows_.assign(static_cast<std::size_t>(out.dims_.x()) * out.dims_.y() * out.dims_.z(), 0);
+  for (int z = 0; z < size.z(); ++z)
+    for (int y = 0; y < size.y(); ++y) {
+      const std::uint64_t* row = line(near, y, z);
+      const std::uint64_t bit = std::uint64_t{1} << (y % B + B * (z % B));
+      const std::size_t plane = static_cast<std::size_t>(out.dims_.x()) * (y / B + static_cast<std::size_t>(out.dims_.y()) * (z / B));
+      for (int bx = 0; bx < out.dims_.x(); ++bx)
+        if (row[bx * B / 64] >> (bx * B % 64) & 0xFF) out.rows_[plane + static_cast<std::size_t>(bx)] |= bit;
+    }
+  return out;
+}
+
+std::uint64_t VoxelRows::RowsOf(const Eigen::Vector3i& block) const {
+  const Eigen::Vector3i d = block - lo_;
+  if ((d.array() < 0).any() || (d.array() >= dims_.array()).any()) return 0;
+  return rows_[static_cast<std::size_t>(d.x()) + static_cast<std::size_t>(dims_.x()) * (d.y() + static_cast<std::size_t>(dims_.y()) * d.z())];
 }
 
 }  // namespace arref

@@ -93,9 +93,16 @@ struct RowOfVoxels {
 TsdfVolume::TsdfVolume(const TsdfOptions& options) : options_(options) {
   near_only_ = options.near_points != nullptr;
   if (near_only_) MarkNearBlocks(*options.near_points);
-  if (near_only_ && options.near_voxels_only)
+  if (near_only_ && options.near_voxels_only) {
     near_rows_ = std::make_shared<const VoxelRows>(
         VoxelRows::Of(*options.near_points, options.voxel_m, options.near_margin_m + options.voxel_m));
+    // A near block none of whose voxels would be updated meshes nothing: it is not allocated, and
+    // its pixels are not traced (NearPixels).
+    for (int z = near_.lo.z(); !near_.slot.empty() && z <= near_.hi.z(); ++z)
+      for (int y = near_.lo.y(); y <= near_.hi.y(); ++y)
+        for (int x = near_.lo.x(); x <= near_.hi.x(); ++x)
+          if (near_rows_->RowsOf({x, y, z}) == 0) near_.slot[near_.Offset({x, y, z})] = Near::kFar;
+  }
 
   options_.near_points = nullptr;
 }

@@ -25,12 +25,6 @@ constexpr float kMaxWeight = 64.0f;
 
 int LocalIndex(int x, int y, int z) { return x + B * (y + B * z); }
 
-// 21 bits per axis: +-2^20 blocks or voxels.
-std::uint64_t PackedKey(const Eigen::Vector3i& b) {
-  const auto k = [](int v) { return static_cast<std::uint64_t>(v + kKeyBias) & 0x1FFFFF; };
-  return (k(b.x()) << 42) | (k(b.y()) << 21) | k(b.z());
-}
-
 int FloorDiv(int a, int b) { return a >= 0 ? a / b : -((-a + b - 1) / b); }
 
 // Moves local coordinates in [-1, B] into the neighbour block that holds them; returns its slot.
@@ -103,7 +97,6 @@ TsdfVolume::TsdfVolume(const TsdfOptions& options) : options_(options) {
         for (int x = near_.lo.x(); x <= near_.hi.x(); ++x)
           if (near_rows_->RowsOf({x, y, z}) == 0) near_.slot[near_.Offset({x, y, z})] = Near::kFar;
   }
-
   options_.near_points = nullptr;
 }
 
@@ -195,7 +188,10 @@ bool TsdfVolume::WouldAllocate(const Eigen::Vector3i& b) const {
   return at >= 0 && near_.slot[at] == Near::kFree;
 }
 
-TsdfVolume::Key TsdfVolume::KeyOf(const Eigen::Vector3i& b) { return PackedKey(b); }
+TsdfVolume::Key TsdfVolume::KeyOf(const Eigen::Vector3i& b) {
+  const auto k = [](int v) { return static_cast<std::uint64_t>(v + kKeyBias) & 0x1FFFFF; };
+  return (k(b.x()) << 42) | (k(b.y()) << 21) | k(b.z());
+}
 
 Eigen::Vector3i TsdfVolume::BlockOf(const Vec3& p, double voxel_m) {
   Eigen::Vector3i b;
@@ -523,6 +519,14 @@ VoxelRows VoxelRows::Of(const std::vector<Vec3f>& points, double voxel_m, double
   if (points.empty() || !(voxel_m > 0) || !(radius_m >= 0)) return out;
   const double r = radius_m / voxel_m + 0.5 * std::sqrt(3.0);
   const int reach = static_cast<int>(std::floor(r));
+  struct Row {
+    int dy, dz, half_width;
+  };
+  std::vector<Row> ball;
+  for (int dz = -reach; dz <= reach; ++dz)
+    for (int dy = -reach; dy <= reach; ++dy)
+      if (const double left = r * r - dy * dy - dz * dz; left >= 0)
+        ball.push_back({dy, dz, static_cast<int>(std::floor(std::sqrt(left)))});
   std::vector<Eigen::Vector3i> voxels(points.size());
   for (std::size_t k = 0; k < points.size(); ++k)
     for (int a = 0; a < 3; ++a) voxels[k][a] = static_cast<int>(std::lround(points[k][a] / voxel_m));
@@ -557,14 +561,11 @@ VoxelRows VoxelRows::Of(const std::vector<Vec3f>& points, double voxel_m, double
         widened[static_cast<std::size_t>(w)][k] = a[k] | a[k] << 1 | (k > 0 ? a[k - 1] >> 63 : 0) | a[k] >> 1 |
                                                    (k + 1 < words ? a[k + 1] << 63 : 0);
     }
-    for (int dz = -reach; dz <= reach; ++dz)
-      for (int dy = -reach; dy <= reach; ++dy) {
-        const double left = r * r - dy * dy - dz * dz;
-        if (left < 0) continue;
-        const auto& spread = widened[static_cast<std::size_t>(std::floor(std::sqrt(left)))];
-        std::uint64_t* target = line(near, m.x() + dy, m.y() + dz);
-        for (std::size_t k = 0; k < words; ++k) target[k] |= spread[k];
-      }
+    for (const Row& row : ball) {
+      const std::vector<std::uint64_t>& spread = widened[static_cast<std::size_t>(row.half_width)];
+      std::uint64_t* target = line(near, m.x() + row.dy, m.y() + row.dz);
+      for (std::size_t k = 0; k < words; ++k) target[k] |= spread[k];
+    }
   }
   out.rows_.assign(static_cast<std::size_t>(out.dims_.x()) * out.dims_.y() * out.dims_.z(), 0);
   for (int z = 0; z < size.z(); ++z)

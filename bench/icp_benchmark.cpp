@@ -192,7 +192,8 @@ void BM_ExpectedInContext(benchmark::State& state) {
 void BM_BandVoxelRows(benchmark::State& state) {
   const Fixture& f = Cell();
   const std::vector<Vec3f> robot = SampleSurface(*f.model_robot->PosedMesh(f.joints), 20000, 1).points;
-  const double margin = std::max(3 * f.voxel_m, 0.05) + 2 * f.voxel_m;
+  const ReconstructionOptions o;  // the band as ExpectedSurfaceMaker::Volume makes it
+  const double margin = std::max(o.truncation_voxels * f.voxel_m, o.min_truncation_m) + 2 * f.voxel_m;
   for (auto _ : state) benchmark::DoNotOptimize(VoxelRows::Of(robot, f.voxel_m, margin + f.voxel_m));
 }
 

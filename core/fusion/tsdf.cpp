@@ -86,17 +86,10 @@ struct RowOfVoxels {
 
 TsdfVolume::TsdfVolume(const TsdfOptions& options) : options_(options) {
   near_only_ = options.near_points != nullptr;
-  if (near_only_) MarkNearBlocks(*options.near_points);
-  if (near_only_ && options.near_voxels_only) {
+  if (near_only_ && options.near_voxels_only)
     near_rows_ = std::make_shared<const VoxelRows>(
         VoxelRows::Of(*options.near_points, options.voxel_m, options.near_margin_m + options.voxel_m));
-    // A near block none of whose voxels would be updated meshes nothing: it is not allocated, and
-    // its pixels are not traced (NearPixels).
-    for (int z = near_.lo.z(); !near_.slot.empty() && z <= near_.hi.z(); ++z)
-      for (int y = near_.lo.y(); y <= near_.hi.y(); ++y)
-        for (int x = near_.lo.x(); x <= near_.hi.x(); ++x)
-          if (near_rows_->RowsOf({x, y, z}) == 0) near_.slot[near_.Offset({x, y, z})] = Near::kFar;
-  }
+  if (near_only_) MarkNearBlocks(*options.near_points);
   options_.near_points = nullptr;
 }
 
@@ -124,7 +117,10 @@ void TsdfVolume::MarkNearBlocks(const std::vector<Vec3f>& points) {
   for (const Eigen::Vector3i& b : near) near_.lo = near_.lo.cwiseMin(b), near_.hi = near_.hi.cwiseMax(b);
   const Eigen::Vector3i dims = near_.hi - near_.lo + Eigen::Vector3i::Ones();
   near_.slot.assign(static_cast<std::size_t>(dims.x()) * dims.y() * dims.z(), Near::kFar);
-  for (const Eigen::Vector3i& b : near) near_.slot[near_.Offset(b)] = Near::kFree;
+  // With near_rows_, a block none of whose voxels would be updated meshes nothing: it stays far
+  // (not allocated, its pixels not traced).
+  for (const Eigen::Vector3i& b : near)
+    if (!near_rows_ || near_rows_->RowsOf(b) != 0) near_.slot[near_.Offset(b)] = Near::kFree;
 }
 
 template <class Fn>

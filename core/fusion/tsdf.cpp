@@ -568,17 +568,21 @@ VoxelRows VoxelRows::Of(const std::vector<Vec3f>& points, double voxel_m, double
     for (int y = 0; y < size.y(); ++y) {
       const std::uint64_t* row = line(near, y, z);
       const std::uint64_t bit = std::uint64_t{1} << (y % B + B * (z % B));
-      const std::size_t plane = static_cast<std::size_t>(out.dims_.x()) * (y / B + static_cast<std::size_t>(out.dims_.y()) * (z / B));
       for (int bx = 0; bx < out.dims_.x(); ++bx)
-        if (row[bx * B / 64] >> (bx * B % 64) & 0xFF) out.rows_[plane + static_cast<std::size_t>(bx)] |= bit;
+        if (row[bx * B / 64] >> (bx * B % 64) & 0xFF) out.rows_[out.Slot({bx, y / B, z / B})] |= bit;
     }
   return out;
+}
+
+std::size_t VoxelRows::Slot(const Eigen::Vector3i& d) const {
+  return static_cast<std::size_t>(d.x()) +
+         static_cast<std::size_t>(dims_.x()) * (d.y() + static_cast<std::size_t>(dims_.y()) * d.z());
 }
 
 std::uint64_t VoxelRows::RowsOf(const Eigen::Vector3i& block) const {
   const Eigen::Vector3i d = block - lo_;
   if ((d.array() < 0).any() || (d.array() >= dims_.array()).any()) return 0;
-  return rows_[static_cast<std::size_t>(d.x()) + static_cast<std::size_t>(dims_.x()) * (d.y() + static_cast<std::size_t>(dims_.y()) * d.z())];
+  return rows_[Slot(d)];
 }
 
 }  // namespace arref

@@ -165,6 +165,7 @@ class VoxelRows {
 
  private:
   static_assert(TsdfVolume::kBlock * TsdfVolume::kBlock <= 64, "a block's rows must fit one 64-bit mask");
+  std::size_t Slot(const Eigen::Vector3i& from_lo) const;  // into rows_, of a block lo_ + from_lo
   Eigen::Vector3i lo_ = Eigen::Vector3i::Zero(), dims_ = Eigen::Vector3i::Zero();  // blocks
   std::vector<std::uint64_t> rows_;
 };

@@ -33,7 +33,7 @@ std::optional<Refusal> HandleTrackRequest(const pb::TrackRequest& m, const Robot
     seed = *T;
   }
   if (!seed) return Refusal{pb::ERROR_CODE_NO_SEED, "TrackRequest: no seed in the request and no SeedPose in the session"};
-  if (auto st = tracking.Start(*robot, m.robot_id(), session, *seed, *result_frame); !st.ok())
+  if (auto st = tracking.Start(*robot, m.robot_id(), session, *seed, *result_frame, m.camera_pose_latency_s()); !st.ok())
     return Refusal{wire::ErrorCodeFor(st), "TrackRequest: " + st.message()};
   return std::nullopt;
 }

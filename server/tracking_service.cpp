@@ -84,7 +84,7 @@ void TrackingService::ReportClock(std::uint64_t session_id, const ClockEstimate&
 
 Status TrackingService::Start(const ServedRobot& served, const std::string& robot_id,
                               const std::shared_ptr<TrackingSink>& session, const Iso3& T_world_base_seed,
-                              FrameConvention result_frame) {
+                              FrameConvention result_frame, double camera_pose_latency_s) {
   std::lock_guard lock(mu_);
   auto& slot = tracks_[robot_id];
   if (!slot) {
@@ -106,16 +106,19 @@ Status TrackingService::Start(const ServedRobot& served, const std::string& robo
   }
   Track& t = *slot;
   std::lock_guard track_lock(t.mu);
+  {
+    std::lock_guard tracker_lock(t.tracker_mu);
+    // Refused before anything changes: the robot's owner and stream stay as they were.
+    ARREF_RETURN_IF_ERROR(t.tracker->SetCameraPoseLatency(camera_pose_latency_s));
+    t.tracker->Seed(T_world_base_seed);
+  }
   t.owner = session;
   t.owner_id = session->id();
   t.result_frame = result_frame;
-  {
-    std::lock_guard tracker_lock(t.tracker_mu);
-    t.tracker->Seed(T_world_base_seed);
-  }
   t.slot.reset();
   t.processed = t.dropped = 0;  // counts of this request's stream
-  spdlog::info("tracking: robot {} for session {}", robot_id, session->id());
+  spdlog::info("tracking: robot {} for session {} (camera poses {} ms after exposure)", robot_id, session->id(),
+               camera_pose_latency_s * 1e3);
   return Status::Ok();
 }
 

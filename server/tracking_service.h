@@ -59,9 +59,10 @@ class TrackingService {
   void Shutdown();
 
   // Starts tracking `robot` with `session`'s frames from a first guess (replacing an earlier
-  // request of any session), or stops it.
+  // request of any session), or stops it. camera_pose_latency_s: how late the session's device
+  // stamps its camera poses (TrackRequest.camera_pose_latency_s; Tracker::SetCameraPoseLatency).
   Status Start(const ServedRobot& robot, const std::string& robot_id, const std::shared_ptr<TrackingSink>& session,
-               const Iso3& T_world_base_seed, FrameConvention result_frame);
+               const Iso3& T_world_base_seed, FrameConvention result_frame, double camera_pose_latency_s = 0.0);
   void Stop(const std::string& robot_id, std::uint64_t session_id);
   // A joint sample stamped on the sender's clock (complete values of the robot's actuated joints).
   Status AddJoints(const std::string& robot_id, std::uint64_t sender_session, double sender_time_s,

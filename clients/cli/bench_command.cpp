@@ -262,6 +262,9 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
   cmd->add_option("--track-pose-latency-ms", args->track.pose_latency_ms,
                   "Track: the camera pose is head tracking's this long after the exposure (ms; 0: at it)")
       ->check(CLI::Range(-1000.0, 1000.0))->capture_default_str();
+  cmd->add_option("--track-declared-latency-ms", args->track.declared_latency_ms,
+                  "Track: the camera pose latency the sender declares to the tracker (ms; 0: none said)")
+      ->check(CLI::Range(0.0, 1000.0))->capture_default_str();
   cmd->callback([args, exit_code, cmd] {
     args->command_line = "arref bench";
     for (const auto& o : cmd->get_options())

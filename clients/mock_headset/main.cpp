@@ -114,6 +114,8 @@ void AddFlags(CLI::App& app, Args& a) {
          "--track-pose-latency-ms", [&a](double ms) { a.track_options.pose_latency_s = ms / 1000.0; },
          "--track: the camera pose sent is head tracking's this long after the exposure (ms)")
       ->check(CLI::Range(-1000.0, 1000.0));
+  app.add_flag("--track-declare-latency", a.track_options.declare_latency,
+               "--track: say that latency in the TrackRequest, as a device that knows it");
   app.add_option("--log-level", a.log_level, "trace, debug, info, warn, error")->capture_default_str();
 }
 

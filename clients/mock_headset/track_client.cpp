@@ -117,6 +117,7 @@ TrackHeadsetRun RunTrackingHeadset(const TrackHeadsetOptions& o) {
     pb::ClientMessage m;
     m.mutable_track_request()->set_robot_id(o.robot_id);
     m.mutable_track_request()->set_result_frame(pb::FRAME_CONVENTION_ROS);
+    if (o.declare_latency) m.mutable_track_request()->set_camera_pose_latency_s(o.pose_latency_s);
     *m.mutable_track_request()->mutable_seed()->mutable_t_world_seed() = wire::PoseToProto(
         simulator->T_world_base_initial() * MakeYawPose(0.03, -0.02, 0.01, 0.05), FrameConvention::kRos);
     m.mutable_track_request()->mutable_seed()->set_frame(pb::FRAME_CONVENTION_ROS);

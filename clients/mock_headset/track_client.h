@@ -27,6 +27,7 @@ struct TrackHeadsetOptions {
   // A real device's effects (sim::TrackSimOptions): mixed pixels on depth edges, a late pose.
   double flying_pixel_rate = 0.0;
   double pose_latency_s = 0.0;
+  bool declare_latency = false;     // say pose_latency_s in the TrackRequest, as a device that knows it
   double headset_clock_offset_s = 12.5;   // the headset's clock runs this far ahead of the machine's
   double sender_clock_offset_s = -0.73;   // the joint sender's
   bool subscriber = true;           // a third session subscribes to the robot's updates

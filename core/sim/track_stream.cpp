@@ -22,6 +22,7 @@ Status RunTrackStream(const std::shared_ptr<const RobotModel>& robot, TrackSimul
   ARREF_ASSIGN_OR_RETURN(const TriangleMesh home, robot->PosedMesh({}));
   const std::vector<Vec3f> add_points = SampleSurface(home, 2000, 1).points;
   tracker.Seed(options.first_guess ? *options.first_guess : simulator.T_world_base_guess());
+  ARREF_RETURN_IF_ERROR(tracker.SetCameraPoseLatency(options.declared_pose_latency_s).WithContext("track stream"));
   double last = -1.0;
   for (int i = 0; i < simulator.frame_count(); ++i) {
     ARREF_ASSIGN_OR_RETURN(const SimFrame f, simulator.Next());

@@ -13,6 +13,7 @@
 
 #include "arref/base/clock.h"
 #include "arref/icp/fast_icp.h"
+#include "arref/track/camera_pose_history.h"
 #include "arref/scene/sampling.h"
 
 namespace arref {
@@ -136,7 +137,11 @@ struct Tracker::Impl {
   // the robot seen through that pose, not an occluder aliased there.
   ModelView reference;
   double jump_time_s = 0.0;  // when jump_guess was set
+  double camera_pose_latency_s = 0.0;  // SetCameraPoseLatency
+  CameraPoseHistory reported_cameras;  // the frames' reported poses, when they come late
+  bool Jumped(const std::pair<double, Iso3>& before, const DepthFrame& f) const;
   bool CameraJumped(const DepthFrame& f) const;
+  const DepthFrame& AtExposure(const DepthFrame& f, std::optional<DepthFrame>* corrected);
 
   int StrideFor(const DepthIntrinsics& c) const {
     return settings.stride > 0 ? settings.stride : std::max(1, (c.width + 159) / 160);
@@ -189,12 +194,31 @@ struct Tracker::Impl {
 };
 
 // Faster than a head moves: the headset's world moved under the camera (re-localisation).
-bool Tracker::Impl::CameraJumped(const DepthFrame& f) const {
-  if (!previous_camera) return false;
-  const double dt = std::max(1e-3, f.time_s - previous_camera->first);
-  const Iso3 delta = previous_camera->second.inverse() * f.T_world_camera;
+bool Tracker::Impl::Jumped(const std::pair<double, Iso3>& before, const DepthFrame& f) const {
+  const double dt = std::max(1e-3, f.time_s - before.first);
+  const Iso3 delta = before.second.inverse() * f.T_world_camera;
   const double angle_deg = Eigen::AngleAxisd(delta.linear()).angle() / kDeg;
   return delta.translation().norm() / dt > settings.camera_jump_m_per_s || angle_deg / dt > settings.camera_jump_deg_per_s;
+}
+
+bool Tracker::Impl::CameraJumped(const DepthFrame& f) const { return previous_camera && Jumped(*previous_camera, f); }
+
+// The frame with its camera at the exposure when the device stamps its pose late: the reported
+// pose at frame time t - latency, interpolated from the frames before it (CameraPoseHistory).
+// Reports before and after a camera jump (a re-localisation) lie in different worlds and are
+// not blended: the first frame of a stream and the first after a jump keep their reported pose.
+// (Taking the jump frame back by the camera's motion over the latency before the jump was
+// measured and not kept: docs/tracking.md, "A late camera pose, declared".) A corrected frame is
+// a copy (its depth too: tens of microseconds against the frame's milliseconds).
+const DepthFrame& Tracker::Impl::AtExposure(const DepthFrame& f, std::optional<DepthFrame>* corrected) {
+  if (camera_pose_latency_s <= 0) return f;
+  if (const auto* newest = reported_cameras.newest(); newest && Jumped(*newest, f)) reported_cameras.Clear();
+  reported_cameras.Add(f.time_s, f.T_world_camera);
+  const std::optional<Iso3> T_world_camera = reported_cameras.At(f.time_s - camera_pose_latency_s);
+  if (!T_world_camera) return f;
+  corrected->emplace(f);
+  (*corrected)->T_world_camera = *T_world_camera;
+  return **corrected;
 }
 
 PointCloud Tracker::Impl::DepthPoints(const DepthFrame& f, const ModelView& view, const Iso3& T_world_base,
@@ -430,12 +454,23 @@ Result<Tracker> Tracker::Create(std::shared_ptr<const RobotModel> robot, Tracker
 
 void Tracker::Seed(const Iso3& T_world_base) {
   impl_->seed = StateToPose(PoseToState(T_world_base));
+  impl_->reported_cameras.Clear();
   impl_->filter.Clear();
   impl_->last_T_world_base.reset();
   impl_->last_T_world_camera.reset();
   impl_->candidate.reset();
   impl_->jump_guess.reset();
   impl_->fused = false;
+}
+
+Status Tracker::SetCameraPoseLatency(double latency_s) {
+  if (!(latency_s >= 0.0 && latency_s <= 1.0))
+    return Status::InvalidArgument(
+        fmt::format("tracker: camera pose latency {} s is outside [0, 1] s (a pose stamped before its exposure is not "
+                    "supported)", latency_s));
+  impl_->camera_pose_latency_s = latency_s;
+  impl_->reported_cameras.Clear();
+  return Status::Ok();
 }
 
 bool Tracker::seeded() const { return impl_->seed.has_value() || impl_->filter.initialised(); }
@@ -746,10 +781,12 @@ TrackResult Tracker::Impl::Reacquire(Step& st) {
   return Finish(st, TrackState::kLost);
 }
 
-Result<TrackResult> Tracker::Process(const DepthFrame& frame, const JointValues& joints) {
-  ARREF_RETURN_IF_ERROR(CheckDepthFrame(frame));
+Result<TrackResult> Tracker::Process(const DepthFrame& reported, const JointValues& joints) {
+  ARREF_RETURN_IF_ERROR(CheckDepthFrame(reported));
   if (!seeded()) return Status::FailedPrecondition("tracker: no first guess of the robot's pose (Seed)");
   Impl& I = *impl_;
+  std::optional<DepthFrame> corrected;
+  const DepthFrame& frame = I.AtExposure(reported, &corrected);
   Impl::Step st(frame, I.CameraJumped(frame));
   LapTimer lap;
   const Status posed = I.caster.Pose(*I.robot, I.robot->ClampedToLimits(joints));

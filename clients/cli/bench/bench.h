@@ -67,6 +67,7 @@ struct TrackConfig {
   // pixels on depth edges, and a camera pose stamped off the exposure.
   double flying_pixel_rate = 0.0;
   double pose_latency_ms = 0.0;
+  double declared_latency_ms = 0.0;  // the latency the sender tells the tracker (TrackRequest)
 };
 
 struct Config {

@@ -87,6 +87,7 @@ Result<std::pair<double, double>> BaselineFrame(const RobotModel& robot, const s
 struct StreamSpec {
   std::shared_ptr<const RobotModel> robot;
   sim::TrackSimOptions options;
+  double declared_latency_s = 0.0;  // the camera pose latency told to the tracker
   std::uint64_t seed = 1;
   int baseline_frames = 0;  // spread over the stream
   bool minutes = false;     // keep the first and last minute's ADD
@@ -149,7 +150,9 @@ Result<StreamStats> RunStream(const StreamSpec& spec) {
     if (spec.minutes && f.true_time_s >= s.duration_s - 60.0) s.add_last_min_mm.push_back(add_mm);
     return Status::Ok();
   };
-  ARREF_RETURN_IF_ERROR(sim::RunTrackStream(spec.robot, simulator, sim::TrackStreamOptions{}, on_step));
+  sim::TrackStreamOptions stream;
+  stream.declared_pose_latency_s = spec.declared_latency_s;
+  ARREF_RETURN_IF_ERROR(sim::RunTrackStream(spec.robot, simulator, stream, on_step));
   s.recovery_s = recovery.recovery_s();
   s.recovery_after_shown_s = recovery.after_shown_s();
   s.rss_end_mb = RssMb();
@@ -186,10 +189,11 @@ Status TrackExperiment(const Config& config, Tables* tables) {
                     "(model, crop, ICP, filter); the baseline is the one-shot way per frame (posed model sampled "
                     "afresh, 10,000 points, PCL ICP 0.1 m / 500 iterations) on {} frames per long-throw stream.\n\n",
                     tc.streams, tc.seconds, tc.baseline_frames);
-  if (tc.flying_pixel_rate > 0 || tc.pose_latency_ms != 0)
+  if (tc.flying_pixel_rate > 0 || tc.pose_latency_ms != 0 || tc.declared_latency_ms != 0)
     md << fmt::format("Device effects on every stream: {:.0f} % of the pixels on depth edges fly (a depth between the "
-                      "edge's two sides), and the camera pose is head tracking's {:.0f} ms after the exposure.\n\n",
-                      100 * tc.flying_pixel_rate, tc.pose_latency_ms);
+                      "edge's two sides), and the camera pose is head tracking's {:.0f} ms after the exposure; the "
+                      "tracker is told {:.0f} ms.\n\n",
+                      100 * tc.flying_pixel_rate, tc.pose_latency_ms, tc.declared_latency_ms);
   md << "| robot | frames | streams | within 10 mm % | steady % | ADD median mm | ADD p95 mm | lost frames | "
         "recovery s (worst) | after shown s (worst) | frame ms median | frame ms p95 | baseline ms median | baseline / tracker | "
         "baseline ADD median mm |\n";
@@ -205,6 +209,7 @@ Status TrackExperiment(const Config& config, Tables* tables) {
         StreamSpec spec;
         spec.robot = robot.model;
         spec.options = DeviceOptions(tc);
+        spec.declared_latency_s = tc.declared_latency_ms / 1000.0;
         spec.options.kind = kind;
         spec.options.duration_s = tc.seconds;
         spec.seed = SplitMix64(stream ^ SplitMix64(std::hash<std::string>{}(robot.label)) ^
@@ -254,6 +259,7 @@ Status TrackExperiment(const Config& config, Tables* tables) {
         StreamSpec spec;
         spec.robot = robot.model;
         spec.options = DeviceOptions(tc);
+        spec.declared_latency_s = tc.declared_latency_ms / 1000.0;
         spec.options.duration_s = 60.0 * tc.long_minutes;
         spec.options.fps = tc.long_fps;
         spec.seed = SplitMix64(stream ^ 0x4C4F4E47ull ^ SplitMix64(std::hash<std::string>{}(robot.label) + static_cast<std::uint64_t>(k)));

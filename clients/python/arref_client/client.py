@@ -476,12 +476,14 @@ class Client:
         self.send(m)
         return estimator.offset_s, estimator.uncertainty_s
 
-    def start_tracking(self, robot_id, seed=None, frame="ros", result_frame="ros"):
+    def start_tracking(self, robot_id, seed=None, frame="ros", result_frame="ros", camera_pose_latency_s=0.0):
         """TrackRequest: this session's depth frames track the robot from `seed` (a pose in
-        `frame`; None: the session's SeedPose). Waits until the server took it: UnknownRobot,
-        NoSeed or InvalidArgument are raised."""
+        `frame`; None: the session's SeedPose). camera_pose_latency_s: how long after the
+        exposure the device stamps its camera pose (0: at it). Waits until the server took it:
+        UnknownRobot, NoSeed or InvalidArgument are raised."""
         m = pb.ClientMessage()
         m.track_request.robot_id = robot_id
+        m.track_request.camera_pose_latency_s = camera_pose_latency_s
         if seed is not None:
             pose_to_proto(seed, m.track_request.seed.T_world_seed)
             m.track_request.seed.frame = frame_convention(frame)

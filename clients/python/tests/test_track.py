@@ -104,6 +104,9 @@ def test_tracking_errors_are_typed_and_keep_the_session(server):
         assert e.value.code == pb.ERROR_CODE_UNKNOWN_ROBOT
         with pytest.raises(errors.NoSeed):
             c.start_tracking("kr5")
+        with pytest.raises(errors.InvalidArgument) as e:
+            c.start_tracking("kr5", (1, 0, 0, 0, 0, 0, 1), camera_pose_latency_s=-0.5)
+        assert "camera pose latency -0.5 s" in e.value.message
         assert c.ping() > 0  # the session goes on
 
 

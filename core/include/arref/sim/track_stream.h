@@ -22,6 +22,9 @@ namespace arref::sim {
 struct TrackStreamOptions {
   int round_trip_every = 10;        // frames between the sender's clock exchanges
   std::optional<Iso3> first_guess;  // the tracker's seed; none: the simulator's T_world_base_guess
+  // The camera pose latency the sender declares (Tracker::SetCameraPoseLatency): the simulator's
+  // own TrackSimOptions::pose_latency_s when the device's is known, 0 when it is not said.
+  double declared_pose_latency_s = 0.0;
   TrackerSettings tracker;
 };
 

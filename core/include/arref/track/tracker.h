@@ -114,9 +114,14 @@ class Tracker {
   // round it.
   void Seed(const Iso3& T_world_base);
   bool seeded() const;
+  // The device stamps each frame's camera pose this long after the exposure (head tracking's
+  // pose at that later time; 0, the default: at the exposure, as DepthFrame says). The tracker
+  // then takes each frame's camera back to its exposure from the poses of the frames before it.
+  // InvalidArgument, naming it, for a latency that is negative, not finite or over a second.
+  Status SetCameraPoseLatency(double latency_s);
   // Registers one frame with the robot at `joints` (complete or partial actuated values;
   // clamped into the limits).
-  Result<TrackResult> Process(const DepthFrame& frame, const JointValues& joints);
+  Result<TrackResult> Process(const DepthFrame& reported, const JointValues& joints);
   const TrackerSettings& settings() const;
 
  private:

@@ -13,8 +13,8 @@
 
 #include "arref/base/clock.h"
 #include "arref/icp/fast_icp.h"
-#include "arref/track/camera_pose_history.h"
 #include "arref/scene/sampling.h"
+#include "arref/track/camera_pose_history.h"
 
 namespace arref {
 

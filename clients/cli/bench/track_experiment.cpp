@@ -160,12 +160,15 @@ Result<StreamStats> RunStream(const StreamSpec& spec) {
 }
 
 
-// The device's effects the bench was asked for, on a stream's options.
-sim::TrackSimOptions DeviceOptions(const TrackConfig& tc) {
-  sim::TrackSimOptions o;
-  o.flying_pixel_rate = tc.flying_pixel_rate;
-  o.pose_latency_s = tc.pose_latency_ms / 1000.0;
-  return o;
+// A stream of `robot` with the device's effects the bench was asked for, and the latency the
+// device declares.
+StreamSpec DeviceStream(const TrackConfig& tc, const BenchRobot& robot) {
+  StreamSpec spec;
+  spec.robot = robot.model;
+  spec.options.flying_pixel_rate = tc.flying_pixel_rate;
+  spec.options.pose_latency_s = tc.pose_latency_ms / 1000.0;
+  spec.declared_latency_s = tc.declared_latency_ms / 1000.0;
+  return spec;
 }
 
 std::string Pct(int a, int b) { return b ? fmt::format("{:.1f}", 100.0 * a / b) : "-"; }
@@ -206,10 +209,7 @@ Status TrackExperiment(const Config& config, Tables* tables) {
       double worst_recovery = -1, worst_after_shown = -1;
       bool unrecovered = false;
       for (int k = 0; k < tc.streams; ++k) {
-        StreamSpec spec;
-        spec.robot = robot.model;
-        spec.options = DeviceOptions(tc);
-        spec.declared_latency_s = tc.declared_latency_ms / 1000.0;
+        StreamSpec spec = DeviceStream(tc, robot);
         spec.options.kind = kind;
         spec.options.duration_s = tc.seconds;
         spec.seed = SplitMix64(stream ^ SplitMix64(std::hash<std::string>{}(robot.label)) ^
@@ -256,10 +256,7 @@ Status TrackExperiment(const Config& config, Tables* tables) {
           "RSS start MB | RSS end MB | frame ms median |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
     for (const BenchRobot& robot : robots)
       for (int k = 0; k < tc.long_streams; ++k) {
-        StreamSpec spec;
-        spec.robot = robot.model;
-        spec.options = DeviceOptions(tc);
-        spec.declared_latency_s = tc.declared_latency_ms / 1000.0;
+        StreamSpec spec = DeviceStream(tc, robot);
         spec.options.duration_s = 60.0 * tc.long_minutes;
         spec.options.fps = tc.long_fps;
         spec.seed = SplitMix64(stream ^ 0x4C4F4E47ull ^ SplitMix64(std::hash<std::string>{}(robot.label) + static_cast<std::uint64_t>(k)));

@@ -33,6 +33,8 @@ struct SimulateTrackArgs {
   double seconds = 3.0;
   double jump_at = -1.0;
   std::uint64_t rng_seed = 1;
+  double pose_latency_ms = 0.0;  // each frame's camera pose is head tracking's this long after the exposure
+  bool declare_latency = false;  // and the TrackRequest says so, as a device that knows it
 };
 
 pb::ClientMessage TrackRequestMessage(const SimulateTrackArgs& args, const Iso3& seed) {
@@ -42,6 +44,7 @@ pb::ClientMessage TrackRequestMessage(const SimulateTrackArgs& args, const Iso3&
   r->set_result_frame(pb::FRAME_CONVENTION_ROS);
   *r->mutable_seed()->mutable_t_world_seed() = wire::PoseToProto(seed, FrameConvention::kRos);
   r->mutable_seed()->set_frame(pb::FRAME_CONVENTION_ROS);
+  if (args.declare_latency) r->set_camera_pose_latency_s(args.pose_latency_ms / 1000.0);
   return m;
 }
 
@@ -65,6 +68,7 @@ int Run(const SimulateTrackArgs& args) {
   options.duration_s = args.seconds;
   options.jump_at_s = args.jump_at;
   options.sender_clock_offset_s = 0.0;  // one clock for the whole stream: the sender's own
+  options.pose_latency_s = args.pose_latency_ms / 1000.0;
   auto simulator = sim::TrackSimulator::Create(robot, options, args.rng_seed);
   if (!simulator.ok()) return Fail(simulator.status().WithContext("simulating the track"));
 
@@ -131,6 +135,10 @@ void AddSimulateTrackCommand(CLI::App& app, int* exit_code) {
   cmd->add_option("--jump-at", args->jump_at, "Time of the headset's world jump, s (< 0: half way; past the end: none)")
       ->capture_default_str();
   cmd->add_option("--rng-seed", args->rng_seed, "Random seed (same seed, same stream)")->capture_default_str();
+  cmd->add_option("--pose-latency-ms", args->pose_latency_ms,
+                  "Each frame's camera pose is head tracking's this long after the exposure (ms)")
+      ->check(CLI::Range(0.0, 1000.0))->capture_default_str();
+  cmd->add_flag("--declare-latency", args->declare_latency, "Say that latency in the stream's TrackRequest");
   cmd->callback([args, exit_code] { *exit_code = Run(*args); });
 }
 

@@ -567,7 +567,7 @@ class Client:
         return TrackingUpdate.from_proto(message.tracking_update)
 
     def track(self, robot_id, stream, *, seed=None, frame="ros", result_frame="ros", pace="original",
-              clock=time.time, on_update=None, settle_s=10.0):
+              clock=time.time, on_update=None, settle_s=10.0, camera_pose_latency_s=None):
         """Tracks the robot with a stream of joint states and depth frames, and collects the updates.
 
         stream: (t_s, pb.ClientMessage) pairs or RecordedMessages in time order (e.g. from
@@ -575,19 +575,23 @@ class Client:
         stream's own clock from 0: each is sent as clock() at the start plus its own, after the
         clock is synchronised and reported, at its t_s ("original" pace) or back to back ("fast",
         where the server drops all but the newest waiting frame). A TrackRequest in the stream
-        gives the seed unless `seed` (in `frame`) is given. Waits up to settle_s after the last
+        gives the seed unless `seed` (in `frame`) is given, and the device's camera pose latency
+        unless camera_pose_latency_s is given (0 without either). Waits up to settle_s after the last
         frame for the updates still due, then stops tracking. Returns a TrackOutcome."""
         if pace not in ("original", "fast"):
             raise ValueError(f"pace '{pace}': expected original or fast")
         items = [(m.t_s, m.message) if hasattr(m, "t_s") else (float(m[0]), m[1]) for m in stream]
+        requests = [m.track_request for _, m in items if m.WhichOneof("kind") == "track_request"]
         if seed is None:
-            requests = [m.track_request for _, m in items if m.WhichOneof("kind") == "track_request"]
             if not requests:
                 raise ValueError("track: no seed given and no TrackRequest in the stream")
             seed = pose_from_proto(requests[0].seed.T_world_seed)
             frame = requests[0].seed.frame
+        if camera_pose_latency_s is None:
+            camera_pose_latency_s = requests[0].camera_pose_latency_s if requests else 0.0
         offset, uncertainty = self.sync_clock(clock=clock)
-        self.start_tracking(robot_id, seed, frame=frame, result_frame=result_frame)
+        self.start_tracking(robot_id, seed, frame=frame, result_frame=result_frame,
+                            camera_pose_latency_s=camera_pose_latency_s)
         out = TrackOutcome([], 0, 0, [], offset, uncertainty, {})
 
         def collect():

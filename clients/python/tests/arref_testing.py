@@ -149,9 +149,12 @@ class TrackStream:
     (the C++ track simulator the mock headset streams): a recording of joint states and depth
     frames, and the true T_world_base of every frame."""
 
-    def __init__(self, folder, rng_seed, seconds=3.0, jump_at=100.0, kind="long-throw"):
-        self.path = str(folder / f"track_{rng_seed}.arrec")
-        self.truth_path = str(folder / f"track_{rng_seed}_truth.json")
+    def __init__(self, folder, rng_seed, seconds=3.0, jump_at=100.0, kind="long-throw", declared_latency_ms=0.0):
+        """declared_latency_ms > 0: every camera pose is that late, and the stream's TrackRequest says so."""
+        name = f"track_{rng_seed}" + (f"_late{declared_latency_ms:g}" if declared_latency_ms else "")
+        self.path = str(folder / f"{name}.arrec")
+        self.truth_path = str(folder / f"{name}_truth.json")
+        late = ["--pose-latency-ms", str(declared_latency_ms), "--declare-latency"] if declared_latency_ms else []
         subprocess.run([ARREF, "--log-level", "warn", "simulate-track", "--rng-seed", str(rng_seed), "--seconds",
                         str(seconds), "--jump-at", str(jump_at), "--kind", kind, "--stream-out", self.path,
-                        "--truth-out", self.truth_path], check=True)
+                        "--truth-out", self.truth_path] + late, check=True)

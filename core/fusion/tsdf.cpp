@@ -564,12 +564,13 @@ VoxelRows VoxelRows::Of(const std::vector<Vec3f>& points, double voxel_m, double
     }
   }
   out.rows_.assign(static_cast<std::size_t>(out.dims_.x()) * out.dims_.y() * out.dims_.z(), 0);
+  const std::uint64_t block_row = (std::uint64_t{1} << B) - 1;  // a block's B bits of a grid row
   for (int z = 0; z < size.z(); ++z)
     for (int y = 0; y < size.y(); ++y) {
       const std::uint64_t* row = line(near, y, z);
       const std::uint64_t bit = std::uint64_t{1} << (y % B + B * (z % B));
       for (int bx = 0; bx < out.dims_.x(); ++bx)
-        if (row[bx * B / 64] >> (bx * B % 64) & 0xFF) out.rows_[out.Slot({bx, y / B, z / B})] |= bit;
+        if (row[bx * B / 64] >> (bx * B % 64) & block_row) out.rows_[out.Slot({bx, y / B, z / B})] |= bit;
     }
   return out;
 }

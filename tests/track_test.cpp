@@ -521,7 +521,7 @@ TEST(CameraPoseHistory, InterpolatesBetweenReportsAndNothingOutside) {
     T.translation() = Vec3(1.0, 2.0, 1.6) + t * Vec3(0.5, -0.3, 0.05);
     return T;
   };
-  CameraPoseHistory history(1.0);
+  CameraPoseHistory history;  // keeps CameraPoseHistory::kKeepS = 1 s
   EXPECT_FALSE(history.At(0.0).has_value()) << "no reports";
   for (int i = 0; i <= 60; ++i) history.Add(i / 30.0, pose_at(i / 30.0));
   for (double t : {1.5, 1.51, 1.987, 2.0}) {

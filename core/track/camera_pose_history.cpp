@@ -7,8 +7,8 @@ namespace arref {
 void CameraPoseHistory::Add(double time_s, const Iso3& T_world_camera) {
   if (!reports_.empty() && !(time_s > reports_.back().first)) reports_.clear();
   reports_.emplace_back(time_s, T_world_camera);
-  // Keep one report at or before time_s - keep_s_, so queries up to keep_s_ back still interpolate.
-  while (reports_.size() > 2 && reports_[1].first <= time_s - keep_s_) reports_.pop_front();
+  // Keep one report at or before time_s - kKeepS, so queries up to kKeepS back still interpolate.
+  while (reports_.size() > 2 && reports_[1].first <= time_s - kKeepS) reports_.pop_front();
 }
 
 std::optional<Iso3> CameraPoseHistory::At(double time_s) const {

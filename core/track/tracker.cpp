@@ -464,10 +464,10 @@ void Tracker::Seed(const Iso3& T_world_base) {
 }
 
 Status Tracker::SetCameraPoseLatency(double latency_s) {
-  if (!(latency_s >= 0.0 && latency_s <= 1.0))
+  if (!(latency_s >= 0.0 && latency_s <= CameraPoseHistory::kKeepS))
     return Status::InvalidArgument(
-        fmt::format("tracker: camera pose latency {} s is outside [0, 1] s (a pose stamped before its exposure is not "
-                    "supported)", latency_s));
+        fmt::format("tracker: camera pose latency {} s is outside [0, {}] s (a pose stamped before its exposure is not "
+                    "supported)", latency_s, CameraPoseHistory::kKeepS));
   impl_->camera_pose_latency_s = latency_s;
   impl_->reported_cameras.Clear();
   return Status::Ok();

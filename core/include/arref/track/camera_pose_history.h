@@ -14,8 +14,8 @@ namespace arref {
 
 class CameraPoseHistory {
  public:
-  CameraPoseHistory() = default;
-  explicit CameraPoseHistory(double keep_s) : keep_s_(keep_s) {}
+  // Reports kept behind the newest: the largest latency that can be taken back.
+  static constexpr double kKeepS = 1.0;
 
   // Reports come in time order; one not after the newest starts the history again (a replayed
   // or reordered frame), as does Clear (the world moved under the camera: poses before and after
@@ -29,7 +29,6 @@ class CameraPoseHistory {
   const std::pair<double, Iso3>* newest() const { return reports_.empty() ? nullptr : &reports_.back(); }
 
  private:
-  double keep_s_ = 1.0;  // reports kept behind the newest: latencies up to this are taken back
   std::deque<std::pair<double, Iso3>> reports_;
 };
 

@@ -3,6 +3,7 @@
 #include <fmt/format.h>
 
 #include <cmath>
+#include <numbers>
 
 namespace arref::wire {
 
@@ -25,6 +26,20 @@ pb::ResultStatus ToProto(ResultStatus status) {
   return pb::RESULT_STATUS_FAILED;
 }
 
+namespace {
+void FillPrecision(const FitPrecision& p, pb::Result* r) {
+  if (!p.valid) return;
+  r->set_expected_error_m(p.expected_error_m);
+  r->set_fit_error_m(p.fit_error_m);
+  r->set_map_error_m(p.map_error_m);
+  r->set_sigma_horizontal_m(p.sigma_horizontal_m);
+  r->set_sigma_vertical_m(p.sigma_vertical_m);
+  r->set_sigma_yaw_deg(p.sigma_yaw_rad * 180.0 / std::numbers::pi);
+  for (int i = 0; i < 4; ++i)
+    for (int j = 0; j < 4; ++j) r->add_covariance(p.covariance(i, j));
+}
+}  // namespace
+
 void FillReport(const RegistrationReport& report, FrameConvention frame, pb::Result* r) {
   r->set_status(ToProto(report.status));
   if (report.status == ResultStatus::kFailed) r->set_error_code(pb::ERROR_CODE_REGISTRATION_FAILED);
@@ -33,6 +48,7 @@ void FillReport(const RegistrationReport& report, FrameConvention frame, pb::Res
   r->set_score(report.score);
   r->set_margin(report.margin);
   r->set_hypotheses(report.hypotheses);
+  FillPrecision(report.precision, r);
   for (const auto& stage : report.stages_run) r->add_stages(stage);
   *r->mutable_t_world_base() = PoseToProto(report.T_world_base, frame);
   r->set_frame(ToProto(frame));
@@ -84,6 +100,7 @@ void FillCandidates(const std::vector<FoundInstance>& instances, int primary, Fr
     c->set_score(f.report.score);
     c->set_margin(f.report.margin);
     c->set_inlier_fraction(f.report.inlier_fraction);
+    if (f.report.precision.valid) c->set_expected_error_m(f.report.precision.expected_error_m);
   }
   r->set_primary_candidate(primary);
 }

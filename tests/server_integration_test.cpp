@@ -15,6 +15,7 @@
 #include <chrono>
 #include <algorithm>
 #include <cmath>
+#include <numbers>
 #include <cstdio>
 #include <cstring>
 #include <filesystem>
@@ -241,6 +242,16 @@ TEST(ServerIntegration, RecoversTruePoseFromUserLikeSeeds) {
       // The mock headset sends its wearer's path, as the app does; the result says it was used.
       const auto& stages = r.result.stages();
       EXPECT_NE(std::find(stages.begin(), stages.end(), "head-path"), stages.end());
+      // So does the expected error: the map's part from that path's eyes, the fit's, their sum
+      // as variances, and the covariance they come from.
+      const pb::Result& x = r.result;
+      EXPECT_GT(x.map_error_m(), 0.0);
+      EXPECT_GT(x.fit_error_m(), 0.0);
+      EXPECT_NEAR(x.expected_error_m(), std::hypot(x.map_error_m(), x.fit_error_m()), 1e-9);
+      EXPECT_LT(x.expected_error_m(), 0.015);
+      ASSERT_EQ(x.covariance_size(), 16);
+      EXPECT_NEAR(x.covariance(0) + x.covariance(5), x.sigma_horizontal_m() * x.sigma_horizontal_m(), 1e-12);
+      EXPECT_NEAR(std::sqrt(x.covariance(15)) * 180 / std::numbers::pi, x.sigma_yaw_deg(), 1e-9);
       latencies.push_back(r.latency_ms);
       std::printf("cell %d seed %d: ADD %.1f mm, translation %.1f mm, rotation %.2f deg, %.0f ms\n",
                   static_cast<int>(cell), seed, r.error->add_m * 1e3, r.error->translation_m * 1e3,

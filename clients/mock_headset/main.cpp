@@ -155,6 +155,7 @@ nlohmann::json RunJson(const HeadsetRun& run) {
     nlohmann::json x{{"request_id", r.request_id}, {"status", wire::pb::ResultStatus_Name(r.result.status())},
                      {"latency_ms", r.latency_ms}, {"rms_m", r.result.rms_m()},
                      {"inlier_fraction", r.result.inlier_fraction()}, {"iterations", r.result.iterations()},
+                     {"expected_error_m", r.result.expected_error_m()},
                      {"server_ms", r.result.server_ms()}, {"queue_ms", r.result.queue_ms()},
                      {"message", r.result.message()},
                      {"stages", std::vector<std::string>(r.result.stages().begin(), r.result.stages().end())}};
@@ -191,6 +192,10 @@ void PrintHuman(const HeadsetRun& run) {
     std::cout << fmt::format("  {}: rms {:.1f} mm ({} model points), inliers {:.1f} %, {} iterations\n",
                              r.result.method(), r.result.rms_m() * 1e3, r.result.rms_points(),
                              r.result.inlier_fraction() * 100, r.result.iterations());
+    if (r.result.expected_error_m() > 0)
+      std::cout << fmt::format("  expected error {:.1f} mm (the fit {:.1f} mm, the map {:.1f} mm)\n",
+                               r.result.expected_error_m() * 1e3, r.result.fit_error_m() * 1e3,
+                               r.result.map_error_m() * 1e3);
     if (!r.result.stages().empty())
       std::cout << "  steps: " << fmt::format("{}", fmt::join(r.result.stages(), ", ")) << "\n";
     if (r.error)

@@ -338,6 +338,13 @@ std::vector<Vec3> EyesOfPath(std::span<const Vec3> path_world, const Iso3& T_wor
   return eyes;
 }
 
+// Where the headset saw the robot from (base frame): the app's head path when it holds enough
+// eyes, else the eyes of the walk whose surface was fitted.
+std::vector<Vec3> SeenFrom(const ArrefIcpInput& in, const Iso3& T_world_base, int walk) {
+  std::vector<Vec3> eyes = EyesOfPath(in.head_path_world, T_world_base);
+  return eyes.empty() ? RobotSide::RefitEyes(walk) : eyes;
+}
+
 // Objects near the robot (a table 0.2 m from its base) hide parts of it from the walker and
 // fuse with its shell; fitted without them, the robot is pulled towards them (about 4 mm
 // towards a table, even without noise). The chosen walk's surface is fused again with the mapped objects
@@ -367,7 +374,7 @@ Result<Candidate> RefineInContext(const ArrefIcpInput& in, int walk, const Targe
   // The surface's points weighed by how far the headset's tracking error moves them, as seen
   // from the eyes it was fused from (tracking_error.h).
   const std::vector<float> weights =
-      TrackingErrorWeights(**fitted, eyes.empty() ? RobotSide::RefitEyes(walk) : eyes, in.params.tracking_error);
+      TrackingErrorWeights(**fitted, SeenFrom(in, best.T_world_base, walk), in.params.tracking_error);
   return Polish(**fitted, dense ? *dense : target, best, in.params, in.cancel, weights);
 }
 
@@ -497,9 +504,9 @@ Result<RegistrationOutput> RegisterArrefIcp(const ArrefIcpInput& in) {
   ARREF_ASSIGN_OR_RETURN(std::vector<Candidate> refined, SearchPoses(in, model, supported, &out, &laps));
   out.stages.push_back("arref-icp");
   out.step_ms.emplace_back("refine", laps.Lap());
+  int walk = -1;  // all round, unless a one-sided walk is chosen
   if (in.model_expected) {
     std::shared_ptr<const PointCloud> fitted = model[2];  // the surface polished last, shared not copied
-    int walk = -1;
     if (in.robot && p.select_walk) {
       ARREF_ASSIGN_OR_RETURN(refined.front(), RefineForWalk(in, fine, target, refined.front(), &fitted, &walk, &out.stages));
       out.step_ms.emplace_back("walk-choice", laps.Lap());
@@ -513,6 +520,10 @@ Result<RegistrationOutput> RegisterArrefIcp(const ArrefIcpInput& in) {
   }
   out.T_world_base = p.rest_on_support ? RestOnSupport(in, supported, refined.front().T_world_base, &out.stages)
                                        : refined.front().T_world_base;
+  if (in.robot) {
+    out.eyes_world = SeenFrom(in, out.T_world_base, walk);
+    for (Vec3& eye : out.eyes_world) eye = out.T_world_base * eye;
+  }
   out.score = refined.front().score;
   out.margin = refined.size() > 1 ? refined[0].score - refined[1].score : refined[0].score;
   out.iterations += refined.front().iterations;

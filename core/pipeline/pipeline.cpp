@@ -112,6 +112,24 @@ void AssignStatus(const ConfidenceThresholds& t, bool calibrated, const std::str
     r->status = r->inlier_fraction < t.failed_below_inlier_fraction ? ResultStatus::kFailed : ResultStatus::kLowConfidence;
 }
 
+// The fit's precision over at most kPrecisionPoints of the visible model (every k-th: the
+// covariance needs the surface's spread, not every sample). The mesh's edge is the length over
+// which its residuals are correlated.
+FitPrecision Precision(const PointCloud& visible, const TargetCloud& target, const Iso3& T_world_base,
+                       std::span<const Vec3> eyes_world, const RegistrationOptions& options, double edge_m) {
+  constexpr std::size_t kPrecisionPoints = 4000;
+  const std::size_t step = std::max<std::size_t>(1, visible.size() / kPrecisionPoints);
+  std::vector<Vec3f> points, normals;
+  for (std::size_t i = 0; i < visible.size(); i += step) {
+    points.push_back(visible.points[i]);
+    if (visible.has_normals()) normals.push_back(visible.normals[i]);
+  }
+  return MeasurePrecision(points, normals, target, T_world_base, eyes_world,
+                          PrecisionSettings{.max_distance_m = options.inlier_threshold_m,
+                                            .correlation_m = edge_m,
+                                            .view_error = options.arref_icp.tracking_error});
+}
+
 }  // namespace
 
 double RegistrationReport::total_ms() const {
@@ -253,7 +271,8 @@ Result<RegistrationReport> Register(const PointCloud& model_base, const RobotSid
   const PointIndex& scene_index = target.index();
   const bool visible_only = method->visible_model_only && model_base.has_visibility();
   report.rms_points = visible_only ? "visible" : "all";
-  const std::vector<Vec3f> visible = VisiblePoints(model_base).points;
+  const PointCloud visible_model = VisiblePoints(model_base);
+  const std::vector<Vec3f>& visible = visible_model.points;
   // RMS over the points the method fits (the paper's metric for the paper's methods).
   const FitQuality fit = MeasureFit(visible_only ? visible : model_base.points, report.T_world_base, scene_index,
                                     options.inlier_threshold_m);
@@ -266,7 +285,9 @@ Result<RegistrationReport> Register(const PointCloud& model_base, const RobotSid
   // scan), the mesh's edge length is no voxel and says nothing of its accuracy.
   const bool fused = std::find(report.stages_run.begin(), report.stages_run.end(), "fitted-exact-surface") ==
                      report.stages_run.end();
-  const double mesh_voxel = !fused ? 0.0 : voxel > 0 ? voxel : MedianEdgeLength(cropped);
+  const double edge = voxel > 0 ? voxel : MedianEdgeLength(cropped);
+  const double mesh_voxel = fused ? edge : 0.0;
+  report.precision = Precision(visible_model, target, report.T_world_base, out->eyes_world, options, edge);
   // A fit on a map that does not show the robot as posed, or on part of the robot, is never OK:
   // on smeared maps both were said OK 20-62 mm off, and on part of a small arm up to 0.75 m
   // (docs/robustness.md, "Joints moving while the map is made").

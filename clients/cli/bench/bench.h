@@ -132,6 +132,7 @@ struct Run {
   double total_ms = 0;
   double peak_mb = 0;
   double mesh_error_m = -1;  // the cell's SimulatedCell::mesh_error_add_m (-1: not measured)
+  FitPrecision precision;    // the result's own (invalid where none was measured)
 };
 
 // A run to do: which cell, seed pose and options.
@@ -166,6 +167,10 @@ struct Row {
   double mesh_error_median_mm = std::nan("");  // over runs whose cell measured it
   std::size_t mesh_good_runs = 0;               // runs on cells whose mesh error is under 5 mm
   double success_mesh_good = 0;                 // share of those within ADD 10 mm
+  // The results' own expected error (Result.expected_error_m), over the runs that gave one, and
+  // the share of those whose ADD lay within twice it: how honest the figure is.
+  double expected_error_median_mm = std::nan("");
+  double within_twice_expected = std::nan("");
 };
 Row Summarise(const std::vector<const Run*>& runs, std::map<std::string, std::string> labels);
 

@@ -81,6 +81,7 @@ void ExecuteOne(Job& job) {
   run.rms_m = report->rms_m, run.add_m = e.add_m, run.translation_m = e.translation_m, run.rotation_deg = e.rotation_deg;
   run.vertical_m = e.vertical_m, run.horizontal_m = e.horizontal_m;
   run.iterations = report->iterations;
+  run.precision = report->precision;
   for (const auto& t : report->timings) run.stage_ms[t.stage] += t.ms;
   for (const auto& t : report->method_steps) run.stage_ms["register/" + t.stage] += t.ms;
   run.total_ms = report->total_ms();
@@ -253,7 +254,8 @@ Row Summarise(const std::vector<const Run*>& runs, std::map<std::string, std::st
   row.runs = runs.size();
   std::vector<double> rms, add, translation, rotation, reg, total, mls, per_iteration;
   std::size_t successes = 0, within_20 = 0, said_ok = 0, mesh_good_successes = 0;
-  std::vector<double> mesh_error;
+  std::vector<double> mesh_error, expected_error;
+  std::size_t within_twice_expected = 0;
   for (const Run* r : runs) {
     row.peak_mb = std::max(row.peak_mb, r->peak_mb);
     if (r->mesh_error_m >= 0) {
@@ -280,6 +282,10 @@ Row Summarise(const std::vector<const Run*>& runs, std::map<std::string, std::st
       per_iteration.push_back(r->stage_ms.at("register") / r->iterations);
     if (r->stage_ms.count("mls")) mls.push_back(r->stage_ms.at("mls"));
     if (r->total_ms > 0) total.push_back(r->total_ms);
+    if (r->precision.valid) {
+      expected_error.push_back(r->precision.expected_error_m * 1e3);
+      within_twice_expected += r->add_m <= 2 * r->precision.expected_error_m;
+    }
   }
   const double n = std::max<double>(1.0, static_cast<double>(runs.size()));
   row.success = static_cast<double>(successes) / n;
@@ -299,6 +305,9 @@ Row Summarise(const std::vector<const Run*>& runs, std::map<std::string, std::st
   row.register_median_ms = Quantile(reg, 0.5), row.total_median_ms = Quantile(total, 0.5), row.mls_median_ms = Quantile(mls, 0.5);
   row.iteration_median_ms = Quantile(per_iteration, 0.5);
   row.mesh_error_median_mm = Quantile(mesh_error, 0.5);
+  row.expected_error_median_mm = Quantile(expected_error, 0.5);
+  if (!expected_error.empty())
+    row.within_twice_expected = static_cast<double>(within_twice_expected) / static_cast<double>(expected_error.size());
   if (row.mesh_good_runs) row.success_mesh_good = static_cast<double>(mesh_good_successes) / static_cast<double>(row.mesh_good_runs);
   return row;
 }

@@ -8,6 +8,7 @@
 #include <filesystem>
 #include <fstream>
 #include <map>
+#include <numbers>
 #include <set>
 
 #include "bench.h"
@@ -54,13 +55,17 @@ const std::vector<Column>& StatColumns() {
 }
 
 // The robustness table adds how far the mesh itself put the robot (the Open3D mesher's
-// per-surface head-pose errors), to tell the mesh's error from the method's.
+// per-surface head-pose errors), to tell the mesh's error from the method's, and how the
+// results' own expected error compares with their ADD.
 const std::vector<Column>& RobustnessColumns() {
   static const std::vector<Column> kColumns = [] {
     std::vector<Column> c = StatColumns();
     c.push_back({"mesh error median mm", [](const Row& r) { return Num(r.mesh_error_median_mm); }});
     c.push_back({"success where mesh error < 5 mm",
                  [](const Row& r) { return r.mesh_good_runs ? Num(r.success_mesh_good * 100, 0) + " % of " + std::to_string(r.mesh_good_runs) : "-"; }});
+    c.push_back({"expected error median mm", [](const Row& r) { return Num(r.expected_error_median_mm); }});
+    c.push_back({"ADD <= 2x expected",
+                 [](const Row& r) { return std::isnan(r.within_twice_expected) ? "-" : Num(r.within_twice_expected * 100, 0) + " %"; }});
     return c;
   }();
   return kColumns;
@@ -106,7 +111,8 @@ Status RunsCsv(const std::string& path, const std::vector<Run>& runs) {
   if (!out) return Status::IoError("cannot write " + path);
   out << "experiment,method,size,params,scene,cell,seed,perturbation,seed_yaw_deg,offset_x,offset_y,offset_z,ok,status,"
          "rms_mm,add_mm,translation_mm,rotation_deg,crop_ms,sample_ms,mls_ms,register_ms,total_ms,peak_mb,iterations,error,"
-         "mesh_error_mm,vertical_mm,horizontal_mm,steps\n";
+         "mesh_error_mm,vertical_mm,horizontal_mm,steps,expected_error_mm,sigma_horizontal_mm,sigma_vertical_mm,"
+         "sigma_yaw_deg,fit_error_mm,map_error_mm\n";
   auto stage = [](const Run& r, const char* s) { return r.stage_ms.count(s) ? Num(r.stage_ms.at(s), 1) : ""; };
   // Every stage and method step ("register/pose-search=12.3;..."), for per-step profiles.
   auto steps = [](const Run& r) {
@@ -114,14 +120,21 @@ Status RunsCsv(const std::string& path, const std::vector<Run>& runs) {
     for (const auto& [name, ms] : r.stage_ms) all += fmt::format("{}={};", name, Num(ms, 1));
     return all;
   };
+  auto precision = [](const Run& r) {
+    const FitPrecision& p = r.precision;
+    if (!p.valid) return std::string(",,,,,");
+    return fmt::format("{},{},{},{},{},{}", Num(p.expected_error_m * 1e3, 2), Num(p.sigma_horizontal_m * 1e3, 2),
+                       Num(p.sigma_vertical_m * 1e3, 2), Num(p.sigma_yaw_rad * 180.0 / std::numbers::pi, 3),
+                       Num(p.fit_error_m * 1e3, 2), Num(p.map_error_m * 1e3, 2));
+  };
   for (const auto& r : runs)
-    out << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", r.experiment, Csv(r.method),
+    out << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", r.experiment, Csv(r.method),
                        r.size, Csv(r.params), r.scene_kind, r.cell, r.seed, r.perturbation, r.seed_yaw_deg,
                        r.seed_offset_m.x(), r.seed_offset_m.y(), r.seed_offset_m.z(), r.ok ? 1 : 0, r.status, Num(r.rms_m * 1e3, 3),
                        Num(r.add_m * 1e3, 3), Num(r.translation_m * 1e3, 3), Num(r.rotation_deg, 3), stage(r, "crop"),
                        stage(r, "sample"), stage(r, "mls"), stage(r, "register"), Num(r.total_ms, 1), Num(r.peak_mb, 0),
                        r.iterations, Csv(r.error), r.mesh_error_m >= 0 ? Num(r.mesh_error_m * 1e3, 2) : "",
-                       Num(r.vertical_m * 1e3, 3), Num(r.horizontal_m * 1e3, 3), Csv(steps(r)));
+                       Num(r.vertical_m * 1e3, 3), Num(r.horizontal_m * 1e3, 3), Csv(steps(r)), precision(r));
   return out ? Status::Ok() : Status::IoError("error writing " + path);
 }
 

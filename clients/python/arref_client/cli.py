@@ -45,7 +45,7 @@ def _result_json(r):
     return {"request_id": r.request_id, "status": r.status, "robot_id": r.robot_id, "session_id": r.session_id,
             "frame": r.frame, "position": list(r.pose[:3]), "orientation": list(r.pose[3:]),
             "T_world_base": r.matrix.ravel().tolist(), "message": r.message, "method": r.method, "rms_m": r.rms_m,
-            "inlier_fraction": r.inlier_fraction, "iterations": r.iterations, "stages": r.stages,
+            "inlier_fraction": r.inlier_fraction, "expected_error_m": r.expected_error_m, "iterations": r.iterations, "stages": r.stages,
             "server_ms": r.server_ms}
 
 
@@ -81,6 +81,9 @@ def cmd_register(args):
         print(f"  T_world_base ({r.frame}): position {r.pose[:3]} orientation {r.pose[3:]}")
         print(f"  {r.method}: rms {r.rms_m * 1e3:.1f} mm, inliers {r.inlier_fraction * 100:.1f} %, "
               f"{r.iterations} iterations, {r.server_ms:.0f} ms on the server")
+        if r.expected_error_m > 0:
+            print(f"  expected error {r.expected_error_m * 1e3:.1f} mm (the fit {r.fit_error_m * 1e3:.1f} mm, "
+                  f"the map {r.map_error_m * 1e3:.1f} mm)")
     return EXIT_OK if r.status in ("OK", "LOW_CONFIDENCE") else EXIT_FAILED
 
 

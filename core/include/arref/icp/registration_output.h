@@ -19,6 +19,9 @@ struct RegistrationOutput {
   double score = -1.0;
   double margin = -1.0;
   int hypotheses = 0;
+  // Where the method took the headset to have seen the robot from while it mapped (world frame):
+  // the app's head path, or the walk arref-icp chose. Empty: the method does not say.
+  std::vector<Vec3> eyes_world;
   std::vector<std::pair<std::string, double>> step_ms;  // the method's own steps, in order (profiling)
 };
 

@@ -11,6 +11,7 @@
 #include "arref/base/geometry.h"
 #include "arref/base/cancel.h"
 #include "arref/fusion/robot_side.h"
+#include "arref/icp/fit_precision.h"
 #include "arref/pipeline/registration.h"
 #include "arref/robot/robot_model.h"
 #include "arref/scene/sampling.h"
@@ -40,6 +41,9 @@ struct RegistrationReport {
   double score = -1.0;              // method's own ranking score and ambiguity margin (-1: none)
   double margin = -1.0;
   int hypotheses = 0;
+  // How precisely the scene pins the pose, from the residuals of the visible model at it
+  // (fit_precision.h): not how far the headset's mesh itself puts the robot.
+  FitPrecision precision;
   int iterations = 0;
   bool converged = false;
   std::size_t scene_triangles = 0;  // after cropping

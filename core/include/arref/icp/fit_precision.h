@@ -1,0 +1,63 @@
+// How far a gravity-aligned fit of the robot to a headset's mesh may be off, as a covariance of
+// (x, y, z, yaw) with two parts:
+// - the fit's: what its own point-to-plane residuals imply (how precisely this mesh pins it);
+// - the map's: how far the headset's tracking error while it mapped moves the robot's surface in
+//   the mesh, propagated from a stated error per view (TrackingError) and the eyes the surface
+//   was seen from. No residual can show this part: the whole surface moves together.
+#pragma once
+
+#include <cstddef>
+#include <span>
+
+#include "arref/base/geometry.h"
+#include "arref/fusion/tracking_error.h"
+#include "arref/icp/fast_icp.h"
+
+namespace arref {
+
+struct PrecisionSettings {
+  double max_distance_m = 0.02;  // model points farther from the scene than this are no pair
+  double min_normal_cos = 0.5;
+  // Residuals of points closer than this are not independent: a mesh errs by whole facets, so
+  // the count of pairs is taken as the count of cells of this side they fall in. The mesh's
+  // voxel (or its edge length); 0: every pair counts.
+  double correlation_m = 0.0;
+  // The error of each view's head pose; the map's part needs eyes too.
+  TrackingError view_error;
+};
+
+struct FitPrecision {
+  bool valid = false;  // at least 4 pairs and a solvable system
+  // Of (x, y, z, yaw), the yaw about the base's vertical axis; world frame, metres and radians.
+  // The sum of the fit's part and the map's (zero without eyes).
+  Eigen::Matrix4d covariance = Eigen::Matrix4d::Zero();
+  Eigen::Matrix4d fit_covariance = Eigen::Matrix4d::Zero();
+  Eigen::Matrix4d map_covariance = Eigen::Matrix4d::Zero();
+  double sigma_horizontal_m = 0.0;  // sqrt(var x + var y)
+  double sigma_vertical_m = 0.0;
+  double sigma_yaw_rad = 0.0;
+  // The root mean square displacement of the model's points under that covariance: the ADD
+  // (mean point error) one standard deviation of the fit's own error amounts to, roughly.
+  double expected_error_m = 0.0;
+  double fit_error_m = 0.0;  // the same of each part alone
+  double map_error_m = 0.0;
+  double residual_rms_m = 0.0;
+  std::size_t pairs = 0;
+  std::size_t independent_pairs = 0;  // pairs counted by correlation cells
+};
+
+// Point-to-plane pairs of the model's points posed at T_world_base with the scene, their
+// Jacobians J in (x, y, z, yaw) (Low 2004, eq. 8, restricted to gravity-aligned motion about the
+// base's axis) and H = J^T J.
+// - The fit's part: sigma^2 H^-1 at the optimum (the Gauss-Newton estimate, e.g. Censi 2007),
+//   scaled by pairs / independent pairs.
+// - The map's part: a view k whose head pose errs by (t_k, w_k) moves a surface point p it sees
+//   by t_k + w_k x (p - eye_k). A fused point moves by the mean over the eyes facing it, and the
+//   least-squares fit follows that field: delta = H^-1 J^T (n . dp). Summed over independent
+//   views, Cov = sum_k B_k S B_k^T with S = diag(position^2 I, orientation^2 I).
+// eyes_world: where the surface was seen from; empty: no map part.
+FitPrecision MeasurePrecision(std::span<const Vec3f> model_base, std::span<const Vec3f> model_normals_base,
+                              const TargetCloud& scene, const Iso3& T_world_base, std::span<const Vec3> eyes_world,
+                              const PrecisionSettings& settings);
+
+}  // namespace arref

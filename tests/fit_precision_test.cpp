@@ -1,0 +1,129 @@
+// The expected error of a fit (fit_precision.h) on the robot's own surface at a known pose: the
+// fit's part follows the scene's noise, the map's follows the error per view and the eyes, and
+// a scene that cannot pin the pose says so instead of giving a figure.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <numbers>
+#include <random>
+#include <vector>
+
+#include "arref/icp/fit_precision.h"
+#include "robot_surface_scene.h"
+
+namespace arref {
+namespace {
+
+using testing::MakeRobotSurfaceScene;
+using testing::RobotSurfaceScene;
+
+// The scene's points moved along their normals by Gaussian noise of sigma_m.
+PointCloud Noisy(const PointCloud& scene, float sigma_m, unsigned seed) {
+  PointCloud out = scene;
+  std::mt19937 rng(seed);
+  std::normal_distribution<float> noise(0.0f, sigma_m);
+  for (std::size_t i = 0; i < out.points.size(); ++i) out.points[i] += noise(rng) * out.normals[i];
+  return out;
+}
+
+// Eyes on a circle of 2 m round the base, 1.6 m up, over the given arc (degrees).
+std::vector<Vec3> EyesRound(const Iso3& T_world_base, int count, double arc_deg) {
+  std::vector<Vec3> eyes;
+  for (int k = 0; k < count; ++k) {
+    const double a = (arc_deg * k / count) * std::numbers::pi / 180.0;
+    eyes.push_back(T_world_base * Vec3(2.0 * std::cos(a), 2.0 * std::sin(a), 1.6));
+  }
+  return eyes;
+}
+
+FitPrecision At(const RobotSurfaceScene& c, const PointCloud& scene, std::span<const Vec3> eyes,
+                const PrecisionSettings& s = {}) {
+  const TargetCloud target(scene);
+  return MeasurePrecision(c.model_base.points, c.model_base.normals, target, c.T_world_base, eyes, s);
+}
+
+TEST(FitPrecision, TheFitsPartFollowsTheNoiseOfTheScene) {
+  const ASSERT_OK_AND_ASSIGN(RobotSurfaceScene c, MakeRobotSurfaceScene());
+  const FitPrecision clean = At(c, c.scene_world, {});
+  const FitPrecision one = At(c, Noisy(c.scene_world, 0.001f, 1), {});
+  const FitPrecision four = At(c, Noisy(c.scene_world, 0.004f, 1), {});
+  ASSERT_TRUE(clean.valid && one.valid && four.valid);
+  EXPECT_GT(one.pairs, 3000u);
+  // Two samplings of one surface differ along its normals too (measured: 1.8 mm RMS, most of it
+  // at edges and on curved links), and the noise adds to that (2.1 and 4.1 mm).
+  EXPECT_LT(clean.residual_rms_m, one.residual_rms_m);
+  EXPECT_LT(one.residual_rms_m, four.residual_rms_m);
+  EXPECT_NEAR(four.residual_rms_m, std::hypot(clean.residual_rms_m, 0.004), 0.0005);
+  // The fit's error is in proportion to the residuals' scale (the pairs barely change).
+  EXPECT_NEAR(four.fit_error_m / one.fit_error_m, four.residual_rms_m / one.residual_rms_m, 0.1);
+  // Thousands of pairs pin the pose to a fraction of a millimetre (measured: 0.24 mm at 4 mm).
+  EXPECT_LT(four.fit_error_m, 0.001);
+  // With no eyes there is no map part, and the total is the fit's.
+  EXPECT_EQ(four.map_error_m, 0.0);
+  EXPECT_DOUBLE_EQ(four.expected_error_m, four.fit_error_m);
+}
+
+TEST(FitPrecision, ResidualsOnOneFacetCountOnce) {
+  const ASSERT_OK_AND_ASSIGN(RobotSurfaceScene c, MakeRobotSurfaceScene());
+  const PointCloud scene = Noisy(c.scene_world, 0.002f, 2);
+  const FitPrecision each = At(c, scene, {});
+  const FitPrecision per_5cm = At(c, scene, {}, PrecisionSettings{.correlation_m = 0.05});
+  ASSERT_TRUE(each.valid && per_5cm.valid);
+  // Measured: 1,236 cells of 5 cm hold the 4,000 pairs.
+  EXPECT_LT(per_5cm.independent_pairs, each.independent_pairs / 3);
+  // sigma scales with sqrt(pairs / independent pairs).
+  const double expected_ratio = std::sqrt(static_cast<double>(each.pairs) / per_5cm.independent_pairs);
+  EXPECT_NEAR(per_5cm.fit_error_m / each.fit_error_m, expected_ratio, 1e-6 * expected_ratio);
+}
+
+TEST(FitPrecision, TheMapsPartFollowsTheErrorPerViewAndWhereTheViewsWere) {
+  const ASSERT_OK_AND_ASSIGN(RobotSurfaceScene c, MakeRobotSurfaceScene());
+  const std::vector<Vec3> round = EyesRound(c.T_world_base, 24, 360);
+  const std::vector<Vec3> few = EyesRound(c.T_world_base, 3, 60);
+  PrecisionSettings s;  // 4 mm and 0.3 degrees per view
+  const FitPrecision all_round = At(c, c.scene_world, round, s);
+  const FitPrecision from_three = At(c, c.scene_world, few, s);
+  s.view_error.position_m *= 2, s.view_error.orientation_deg *= 2;
+  const FitPrecision doubled = At(c, c.scene_world, round, s);
+  ASSERT_TRUE(all_round.valid && from_three.valid && doubled.valid);
+  // Linear in the error per view.
+  EXPECT_NEAR(doubled.map_error_m / all_round.map_error_m, 2.0, 1e-9);
+  // Many views average their errors; three from one side do not.
+  EXPECT_GT(from_three.map_error_m, 2 * all_round.map_error_m);
+  // Three views' errors move the robot by millimetres: a view's 0.3 degrees alone moves a
+  // point 2 m away by 10 mm.
+  EXPECT_GT(from_three.map_error_m, 0.002);
+  EXPECT_LT(from_three.map_error_m, 0.012);
+  // The parts add as variances.
+  EXPECT_NEAR(all_round.expected_error_m * all_round.expected_error_m,
+              all_round.fit_error_m * all_round.fit_error_m + all_round.map_error_m * all_round.map_error_m, 1e-12);
+}
+
+TEST(FitPrecision, AFlatSceneCannotPinThePoseAndSaysSo) {
+  // A floor patch fitted to a floor: height is pinned, x, y and yaw are not.
+  PointCloud patch, floor;
+  for (int i = -20; i <= 20; ++i)
+    for (int j = -20; j <= 20; ++j) {
+      patch.points.emplace_back(0.01f * i, 0.01f * j, 0.0f);
+      floor.points.emplace_back(0.02f * i + 0.005f, 0.02f * j + 0.005f, 0.0f);
+    }
+  patch.normals.assign(patch.points.size(), Vec3f::UnitZ());
+  floor.normals.assign(floor.points.size(), Vec3f::UnitZ());
+  const TargetCloud target(floor);
+  const FitPrecision p = MeasurePrecision(patch.points, patch.normals, target, Iso3::Identity(), {}, {});
+  EXPECT_GT(p.pairs, 1000u);
+  EXPECT_FALSE(p.valid);
+  EXPECT_EQ(p.expected_error_m, 0.0);
+}
+
+TEST(FitPrecision, NoSceneNearTheModelIsNoFigure) {
+  const ASSERT_OK_AND_ASSIGN(RobotSurfaceScene c, MakeRobotSurfaceScene());
+  PointCloud far = c.scene_world;
+  far.Transform(MakeYawPose(5.0, 0.0, 0.0, 0.0));
+  const FitPrecision p = At(c, far, {});
+  EXPECT_EQ(p.pairs, 0u);
+  EXPECT_FALSE(p.valid);
+}
+
+}  // namespace
+}  // namespace arref

@@ -65,6 +65,10 @@ TEST(Bench, QuickRunWritesSaneTables) {
     pictures += std::filesystem::exists(png) && std::filesystem::file_size(png) > 1000u;
     if (run.at("method") == "arref-icp" && run.at("ok") == "1") {  // its steps are profiled per run
       EXPECT_NE(run.at("steps").find("register/pose-search="), std::string::npos) << run.at("steps");
+      // ... and it says what ran and how far it may be off.
+      EXPECT_NE(run.at("stages").find("arref-icp"), std::string::npos) << run.at("stages");
+      EXPECT_GT(std::stod(run.at("expected_error_mm")), 0.0);
+      EXPECT_GT(std::stod(run.at("map_error_mm")), 0.0);
     }
   }
   EXPECT_GE(pictures, 2);  // pcl-icp always gives a pose

@@ -133,6 +133,7 @@ struct Run {
   double peak_mb = 0;
   double mesh_error_m = -1;  // the cell's SimulatedCell::mesh_error_add_m (-1: not measured)
   FitPrecision precision;    // the result's own (invalid where none was measured)
+  std::string stages;        // the result's stages_run, ';'-separated
 };
 
 // A run to do: which cell, seed pose and options.

@@ -82,6 +82,7 @@ void ExecuteOne(Job& job) {
   run.vertical_m = e.vertical_m, run.horizontal_m = e.horizontal_m;
   run.iterations = report->iterations;
   run.precision = report->precision;
+  run.stages = fmt::format("{}", fmt::join(report->stages_run, ";"));
   for (const auto& t : report->timings) run.stage_ms[t.stage] += t.ms;
   for (const auto& t : report->method_steps) run.stage_ms["register/" + t.stage] += t.ms;
   run.total_ms = report->total_ms();

@@ -7,17 +7,13 @@
 #include <unordered_set>
 #include <vector>
 
+#include "arref/scene/sampling.h"
+
 namespace arref {
 namespace {
 
 using Vec4d = Eigen::Vector4d;
 using Vec6d = Eigen::Matrix<double, 6, 1>;
-
-// The cell of a point, packed into one key (21 bits per axis: a 2 km cube at 1 mm cells).
-std::uint64_t CellKey(const Vec3f& p, double cell_m) {
-  auto axis = [&](float v) { return static_cast<std::uint64_t>(std::floor(v / cell_m) + (1 << 20)) & 0x1FFFFF; };
-  return axis(p.x()) | axis(p.y()) << 21 | axis(p.z()) << 42;
-}
 
 // One point-to-plane pair at the fit: the model point (world), the scene's normal there and
 // d r / d(x, y, z, yaw) when the base moves by (v, w) about its own vertical axis: the point

@@ -92,19 +92,19 @@ PointCloud Thinned(const PointCloud& cloud, std::size_t limit) {
   return SpatiallyOrdered(cloud.Subset(keep));
 }
 
+std::uint64_t CellKey(const Vec3f& p, double cell_m) {
+  auto axis = [&](float v) { return static_cast<std::uint64_t>(std::floor(v / cell_m) + (1 << 20)) & 0x1FFFFF; };
+  return axis(p.x()) | axis(p.y()) << 21 | axis(p.z()) << 42;
+}
+
 PointCloud VoxelDownsample(const PointCloud& cloud, double leaf_m) {
   if (leaf_m <= 0.0 || cloud.empty()) return cloud;
   struct Cell { Vec3f sum = Vec3f::Zero(); Vec3f normal = Vec3f::Zero(); int count = 0; };
   std::unordered_map<std::uint64_t, Cell> cells;
   std::vector<std::uint64_t> order;  // first-seen order keeps the output deterministic
-  const float inv = static_cast<float>(1.0 / leaf_m);
   for (std::size_t i = 0; i < cloud.size(); ++i) {
-    const Eigen::Vector3i k = (cloud.points[i] * inv).array().floor().cast<int>();
-    const std::uint64_t key = (static_cast<std::uint64_t>(k.x() & 0x1FFFFF) << 42) |
-                              (static_cast<std::uint64_t>(k.y() & 0x1FFFFF) << 21) |
-                              static_cast<std::uint64_t>(k.z() & 0x1FFFFF);
-    auto [it, inserted] = cells.try_emplace(key);
-    if (inserted) order.push_back(key);
+    auto [it, inserted] = cells.try_emplace(CellKey(cloud.points[i], leaf_m));
+    if (inserted) order.push_back(it->first);
     it->second.sum += cloud.points[i];
     if (cloud.has_normals()) it->second.normal += cloud.normals[i];
     ++it->second.count;

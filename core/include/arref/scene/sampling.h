@@ -21,6 +21,10 @@ PointCloud SpatiallyOrdered(const PointCloud& cloud, double cell_m = 0.1);
 // ordered; limit 0 keeps every point in its order.
 PointCloud Thinned(const PointCloud& cloud, std::size_t limit);
 
+// The cell of side cell_m that holds p, packed into one key (21 bits per axis: cells within
+// 2^20 of the origin along each axis, a 2 km cube at 1 mm cells).
+std::uint64_t CellKey(const Vec3f& p, double cell_m);
+
 // One point per occupied voxel (the centroid of its points; normals averaged).
 PointCloud VoxelDownsample(const PointCloud& cloud, double leaf_m);
 

@@ -32,11 +32,12 @@ void FillPrecision(const FitPrecision& p, pb::Result* r) {
   r->set_expected_error_m(p.expected_error_m);
   r->set_fit_error_m(p.fit_error_m);
   r->set_map_error_m(p.map_error_m);
-  r->set_sigma_horizontal_m(p.sigma_horizontal_m);
-  r->set_sigma_vertical_m(p.sigma_vertical_m);
-  r->set_sigma_yaw_deg(p.sigma_yaw_rad * 180.0 / std::numbers::pi);
+  r->set_sigma_horizontal_m(p.sigma_horizontal_m());
+  r->set_sigma_vertical_m(p.sigma_vertical_m());
+  r->set_sigma_yaw_deg(p.sigma_yaw_rad() * 180.0 / std::numbers::pi);
+  const Eigen::Matrix4d C = p.covariance();
   for (int i = 0; i < 4; ++i)
-    for (int j = 0; j < 4; ++j) r->add_covariance(p.covariance(i, j));
+    for (int j = 0; j < 4; ++j) r->add_covariance(C(i, j));
 }
 }  // namespace
 

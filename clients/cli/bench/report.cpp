@@ -123,8 +123,8 @@ Status RunsCsv(const std::string& path, const std::vector<Run>& runs) {
   auto precision = [](const Run& r) {
     const FitPrecision& p = r.precision;
     if (!p.valid) return std::string(",,,,,");
-    return fmt::format("{},{},{},{},{},{}", Num(p.expected_error_m * 1e3, 2), Num(p.sigma_horizontal_m * 1e3, 2),
-                       Num(p.sigma_vertical_m * 1e3, 2), Num(p.sigma_yaw_rad * 180.0 / std::numbers::pi, 3),
+    return fmt::format("{},{},{},{},{},{}", Num(p.expected_error_m * 1e3, 2), Num(p.sigma_horizontal_m() * 1e3, 2),
+                       Num(p.sigma_vertical_m() * 1e3, 2), Num(p.sigma_yaw_rad() * 180.0 / std::numbers::pi, 3),
                        Num(p.fit_error_m * 1e3, 2), Num(p.map_error_m * 1e3, 2));
   };
   for (const auto& r : runs)

@@ -6,6 +6,7 @@
 //   was seen from. No residual can show this part: the whole surface moves together.
 #pragma once
 
+#include <cmath>
 #include <cstddef>
 #include <span>
 
@@ -27,17 +28,16 @@ struct PrecisionSettings {
 };
 
 struct FitPrecision {
-  bool valid = false;  // at least 4 pairs and a solvable system
+  bool valid = false;  // at least 5 pairs and a solvable system
   // Of (x, y, z, yaw), the yaw about the base's vertical axis; world frame, metres and radians.
-  // The sum of the fit's part and the map's (zero without eyes).
-  Eigen::Matrix4d covariance = Eigen::Matrix4d::Zero();
   Eigen::Matrix4d fit_covariance = Eigen::Matrix4d::Zero();
-  Eigen::Matrix4d map_covariance = Eigen::Matrix4d::Zero();
-  double sigma_horizontal_m = 0.0;  // sqrt(var x + var y)
-  double sigma_vertical_m = 0.0;
-  double sigma_yaw_rad = 0.0;
-  // The root mean square displacement of the model's points under that covariance: the ADD
-  // (mean point error) one standard deviation of the fit's own error amounts to, roughly.
+  Eigen::Matrix4d map_covariance = Eigen::Matrix4d::Zero();  // zero without eyes
+  Eigen::Matrix4d covariance() const { return fit_covariance + map_covariance; }
+  double sigma_horizontal_m() const { return std::sqrt(covariance()(0, 0) + covariance()(1, 1)); }
+  double sigma_vertical_m() const { return std::sqrt(covariance()(2, 2)); }
+  double sigma_yaw_rad() const { return std::sqrt(covariance()(3, 3)); }
+  // The root mean square displacement of the model's points under covariance(): roughly the ADD
+  // (mean point error) of one standard deviation of the pose's error.
   double expected_error_m = 0.0;
   double fit_error_m = 0.0;  // the same of each part alone
   double map_error_m = 0.0;

@@ -113,6 +113,16 @@ TEST_F(CliTest, DefaultMethodIsExactOnExactGeometry) {
   }
 }
 
+// `arref demo` (the README's one-process demo): each seed's result with its own expected error
+// beside the true one. Measured: ADD 4.4 and 4.4 mm, expected errors 3.8 mm.
+TEST_F(CliTest, DemoPrintsEachResultsExpectedAndTrueError) {
+  const auto r = RunCommand(Arref() + " demo --seeds 2");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.out.find("expected error 3."), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("true error: ADD"), std::string::npos) << r.out;
+  EXPECT_NE(r.out.find("2 of 2 seeds within 10 mm"), std::string::npos) << r.out;
+}
+
 // On a fused headset mesh the default fits the robot as the headset would mesh it. Measured
 // (built-in robot, these cells and seeds): ADD 2.2-5.7 mm, all OK; arref-icp-exact 2.6-7.7 mm.
 TEST_F(CliTest, DefaultMethodFitsTheExpectedHeadsetSurface) {

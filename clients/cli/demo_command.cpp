@@ -56,8 +56,9 @@ int Run(const DemoArgs& args) {
     std::printf("\nseed %zu (off by %.0f mm, %.1f deg):\n", i, seed_error.translation_m * 1e3, seed_error.rotation_deg);
     PrintPose("  seed", cell->seeds[i]);
     PrintPose("  registered", report->T_world_base);
-    std::printf("  rms %.1f mm | true error: ADD %.1f mm, translation %.1f mm, rotation %.2f deg | %.0f ms\n",
-                report->rms_m * 1e3, e.add_m * 1e3, e.translation_m * 1e3, e.rotation_deg, report->total_ms());
+    std::printf("  rms %.1f mm | expected error %.1f mm | true error: ADD %.1f mm, translation %.1f mm, rotation %.2f deg | %.0f ms\n",
+                report->rms_m * 1e3, report->precision.expected_error_m * 1e3, e.add_m * 1e3, e.translation_m * 1e3,
+                e.rotation_deg, report->total_ms());
     adds.push_back(e.add_m);
   }
   if (adds.empty()) return kExitOk;

@@ -32,6 +32,7 @@ void FillPrecision(const FitPrecision& p, pb::Result* r) {
   r->set_expected_error_m(p.expected_error_m);
   r->set_fit_error_m(p.fit_error_m);
   r->set_map_error_m(p.map_error_m);
+  r->set_surface_error_m(p.surface_error_m);
   r->set_sigma_horizontal_m(p.sigma_horizontal_m());
   r->set_sigma_vertical_m(p.sigma_vertical_m());
   r->set_sigma_yaw_deg(p.sigma_yaw_rad() * 180.0 / std::numbers::pi);

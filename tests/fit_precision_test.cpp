@@ -39,7 +39,7 @@ std::vector<Vec3> EyesRound(const Iso3& T_world_base, int count, double arc_deg)
 FitPrecision At(const RobotSurfaceScene& c, const PointCloud& scene, std::span<const Vec3> eyes,
                 const PrecisionSettings& s = {}) {
   const TargetCloud target(scene);
-  return MeasurePrecision(c.model_base.points, c.model_base.normals, target, c.T_world_base, eyes, s);
+  return MeasurePrecision(c.model_base.points, c.model_base.normals, target, c.T_world_base, eyes, nullptr, s);
 }
 
 TEST(FitPrecision, TheFitsPartFollowsTheNoiseOfTheScene) {
@@ -99,6 +99,29 @@ TEST(FitPrecision, TheMapsPartFollowsTheErrorPerViewAndWhereTheViewsWere) {
               all_round.fit_error_m * all_round.fit_error_m + all_round.map_error_m * all_round.map_error_m, 1e-12);
 }
 
+TEST(FitPrecision, TwoSurfaceModelsThatDisagreeAddHalfTheirDifference) {
+  const ASSERT_OK_AND_ASSIGN(RobotSurfaceScene c, MakeRobotSurfaceScene());
+  const TargetCloud target(c.scene_world);
+  auto with_other = [&](const Iso3& T_other) {
+    return MeasurePrecision(c.model_base.points, c.model_base.normals, target, c.T_world_base, {}, &T_other, {});
+  };
+  // The other model's fit 12 mm away along x: the pose lies at either, so 6 mm either way.
+  const FitPrecision shifted = with_other(c.T_world_base * MakeYawPose(0.012, 0.0, 0.0, 0.0));
+  ASSERT_TRUE(shifted.valid);
+  EXPECT_NEAR(shifted.surface_error_m, 0.006, 1e-9);
+  EXPECT_NEAR(shifted.sigma_vertical_m() * shifted.sigma_vertical_m(),
+              shifted.fit_covariance(2, 2), 1e-15);  // nothing vertical from it
+  // Turned 1 degree about the base: each point moves by its radius times the angle, half of it.
+  const FitPrecision turned = with_other(c.T_world_base * MakeYawPose(0.0, 0.0, 0.0, std::numbers::pi / 180));
+  ASSERT_TRUE(turned.valid);
+  EXPECT_NEAR(turned.surface_covariance(3, 3), std::pow(std::numbers::pi / 360, 2), 1e-12);
+  EXPECT_GT(turned.surface_error_m, 0.001);
+  // The same fit: no part; and the parts add as variances.
+  EXPECT_EQ(with_other(c.T_world_base).surface_error_m, 0.0);
+  EXPECT_NEAR(shifted.expected_error_m * shifted.expected_error_m,
+              shifted.fit_error_m * shifted.fit_error_m + shifted.surface_error_m * shifted.surface_error_m, 1e-12);
+}
+
 TEST(FitPrecision, AFlatSceneCannotPinThePoseAndSaysSo) {
   // A floor patch fitted to a floor: height is pinned, x, y and yaw are not.
   PointCloud patch, floor;
@@ -110,7 +133,7 @@ TEST(FitPrecision, AFlatSceneCannotPinThePoseAndSaysSo) {
   patch.normals.assign(patch.points.size(), Vec3f::UnitZ());
   floor.normals.assign(floor.points.size(), Vec3f::UnitZ());
   const TargetCloud target(floor);
-  const FitPrecision p = MeasurePrecision(patch.points, patch.normals, target, Iso3::Identity(), {}, {});
+  const FitPrecision p = MeasurePrecision(patch.points, patch.normals, target, Iso3::Identity(), {}, nullptr, {});
   EXPECT_GT(p.pairs, 1000u);
   EXPECT_FALSE(p.valid);
   EXPECT_EQ(p.expected_error_m, 0.0);

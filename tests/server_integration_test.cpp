@@ -242,12 +242,13 @@ TEST(ServerIntegration, RecoversTruePoseFromUserLikeSeeds) {
       // The mock headset sends its wearer's path, as the app does; the result says it was used.
       const auto& stages = r.result.stages();
       EXPECT_NE(std::find(stages.begin(), stages.end(), "head-path"), stages.end());
-      // So does the expected error: the map's part from that path's eyes, the fit's, their sum
-      // as variances, and the covariance they come from.
+      // So does the expected error: the map's part from that path's eyes, the fit's, the surface
+      // model's (arref-icp fits two), their sum as variances, and the covariance they come from.
       const pb::Result& x = r.result;
       EXPECT_GT(x.map_error_m(), 0.0);
       EXPECT_GT(x.fit_error_m(), 0.0);
-      EXPECT_NEAR(x.expected_error_m(), std::hypot(x.map_error_m(), x.fit_error_m()), 1e-9);
+      EXPECT_GT(x.surface_error_m(), 0.0);
+      EXPECT_NEAR(x.expected_error_m(), std::hypot(x.map_error_m(), x.fit_error_m(), x.surface_error_m()), 1e-9);
       EXPECT_LT(x.expected_error_m(), 0.015);
       ASSERT_EQ(x.covariance_size(), 16);
       EXPECT_NEAR(x.covariance(0) + x.covariance(5), x.sigma_horizontal_m() * x.sigma_horizontal_m(), 1e-12);

@@ -121,7 +121,7 @@ nlohmann::json ReportJson(const RegistrationReport& r, FrameConvention frame) {
   j["inlier_fraction"] = r.inlier_fraction;
   if (r.precision.valid)
     j["expected_error_m"] = {{"total", r.precision.expected_error_m}, {"fit", r.precision.fit_error_m},
-                             {"map", r.precision.map_error_m}};
+                             {"map", r.precision.map_error_m}, {"surface", r.precision.surface_error_m}};
   j["iterations"] = r.iterations;
   j["converged"] = r.converged;
   j["points"] = {{"scene_triangles", r.scene_triangles}, {"scene", r.scene_points}, {"model", r.model_points}};
@@ -148,9 +148,9 @@ void PrintHuman(const nlohmann::json& j) {
               j["rms_points"].get<std::string>().c_str(),
               j["inlier_fraction"].get<double>() * 100, j["iterations"].get<int>(), j["timings_ms"]["total"].get<double>());
   if (j.contains("expected_error_m"))
-    std::printf("expected error %.1f mm (the fit %.1f mm, the map %.1f mm)\n",
+    std::printf("expected error %.1f mm (the fit %.1f mm, the map %.1f mm, the surface model %.1f mm)\n",
                 j["expected_error_m"]["total"].get<double>() * 1e3, j["expected_error_m"]["fit"].get<double>() * 1e3,
-                j["expected_error_m"]["map"].get<double>() * 1e3);
+                j["expected_error_m"]["map"].get<double>() * 1e3, j["expected_error_m"]["surface"].get<double>() * 1e3);
   if (j.contains("add_m"))
     std::printf("vs truth: ADD %.2f mm, translation %.2f mm, rotation %.2f deg\n", j["add_m"].get<double>() * 1e3,
                 j["translation_error_m"].get<double>() * 1e3, j["rotation_error_deg"].get<double>());

@@ -380,9 +380,11 @@ Result<Candidate> RefineInContext(const ArrefIcpInput& in, int walk, const Targe
 
 // Which surface explains the scene: a fused headset mesh is matched by the expected surface,
 // exact geometry (a CAD scene, a fine scan) by the exact one. The winner is refined with the exact
-// visible surface too, and whichever lies closer to the scene's tangent planes is kept.
+// visible surface too, and whichever lies closer to the scene's tangent planes is kept; *other gets
+// the pose the other one gave (how far the choice of model moves the fit: the expected error's
+// surface part, fit_precision.h).
 Result<Candidate> ExactIfCloser(const ArrefIcpInput& in, const PointCloud& expected_fine, const TargetCloud& target,
-                                const Candidate& best, std::vector<std::string>* stages) {
+                                const Candidate& best, std::vector<std::string>* stages, Iso3* other) {
   const ArrefIcpParams& p = in.params;
   // Kept by the robot when there is one: no copy per request.
   const auto exact_kept = in.robot ? in.robot->Visible(p.fine_points)
@@ -395,9 +397,11 @@ Result<Candidate> ExactIfCloser(const ArrefIcpInput& in, const PointCloud& expec
                 d_exact * 1e3);
   if (d_exact < d_expected) {
     stages->push_back("fitted-exact-surface");
+    *other = best.T_world_base;
     return exact;
   }
   stages->push_back("fitted-expected-surface");
+  *other = exact.T_world_base;
   return best;
 }
 
@@ -515,11 +519,16 @@ Result<RegistrationOutput> RegisterArrefIcp(const ArrefIcpInput& in) {
       ARREF_ASSIGN_OR_RETURN(refined.front(), RefineInContext(in, walk, target, refined.front(), &fitted, &out.stages));
       out.step_ms.emplace_back("context", laps.Lap());
     }
-    ARREF_ASSIGN_OR_RETURN(refined.front(), ExactIfCloser(in, *fitted, target, refined.front(), &out.stages));
+    ARREF_ASSIGN_OR_RETURN(refined.front(),
+                           ExactIfCloser(in, *fitted, target, refined.front(), &out.stages, &out.T_world_base_other_surface));
+    out.has_other_surface = true;
     out.step_ms.emplace_back("surface-choice", laps.Lap());
   }
   out.T_world_base = p.rest_on_support ? RestOnSupport(in, supported, refined.front().T_world_base, &out.stages)
                                        : refined.front().T_world_base;
+  // Set on the support, the other surface's fit moves with it: their difference is the models'.
+  if (out.has_other_surface)
+    out.T_world_base_other_surface.translation().z() += out.T_world_base.translation().z() - refined.front().T_world_base.translation().z();
   if (in.robot) {
     out.eyes_world = SeenFrom(in, out.T_world_base, walk);
     for (Vec3& eye : out.eyes_world) eye = out.T_world_base * eye;

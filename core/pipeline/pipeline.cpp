@@ -116,7 +116,7 @@ void AssignStatus(const ConfidenceThresholds& t, bool calibrated, const std::str
 // covariance needs the surface's spread, not every sample). The mesh's edge is the length over
 // which its residuals are correlated.
 FitPrecision Precision(const PointCloud& visible, const TargetCloud& target, const Iso3& T_world_base,
-                       std::span<const Vec3> eyes_world, const RegistrationOptions& options, double edge_m) {
+                       const RegistrationOutput& method, const RegistrationOptions& options, double edge_m) {
   constexpr std::size_t kPrecisionPoints = 4000;
   const std::size_t step = std::max<std::size_t>(1, visible.size() / kPrecisionPoints);
   std::vector<Vec3f> points, normals;
@@ -124,7 +124,8 @@ FitPrecision Precision(const PointCloud& visible, const TargetCloud& target, con
     points.push_back(visible.points[i]);
     if (visible.has_normals()) normals.push_back(visible.normals[i]);
   }
-  return MeasurePrecision(points, normals, target, T_world_base, eyes_world,
+  return MeasurePrecision(points, normals, target, T_world_base, method.eyes_world,
+                          method.has_other_surface ? &method.T_world_base_other_surface : nullptr,
                           PrecisionSettings{.max_distance_m = options.inlier_threshold_m,
                                             .correlation_m = edge_m,
                                             .view_error = options.arref_icp.tracking_error});
@@ -287,7 +288,7 @@ Result<RegistrationReport> Register(const PointCloud& model_base, const RobotSid
                      report.stages_run.end();
   const double edge = voxel > 0 ? voxel : MedianEdgeLength(cropped);
   const double mesh_voxel = fused ? edge : 0.0;
-  report.precision = Precision(visible_model, target, report.T_world_base, out->eyes_world, options, edge);
+  report.precision = Precision(visible_model, target, report.T_world_base, *out, options, edge);
   // A fit on a map that does not show the robot as posed, or on part of the robot, is never OK:
   // on smeared maps both were said OK 20-62 mm off, and on part of a small arm up to 0.75 m
   // (docs/robustness.md, "Joints moving while the map is made").

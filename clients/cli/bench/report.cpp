@@ -112,7 +112,7 @@ Status RunsCsv(const std::string& path, const std::vector<Run>& runs) {
   out << "experiment,method,size,params,scene,cell,seed,perturbation,seed_yaw_deg,offset_x,offset_y,offset_z,ok,status,"
          "rms_mm,add_mm,translation_mm,rotation_deg,crop_ms,sample_ms,mls_ms,register_ms,total_ms,peak_mb,iterations,error,"
          "mesh_error_mm,vertical_mm,horizontal_mm,steps,expected_error_mm,sigma_horizontal_mm,sigma_vertical_mm,"
-         "sigma_yaw_deg,fit_error_mm,map_error_mm,stages\n";
+         "sigma_yaw_deg,fit_error_mm,map_error_mm,surface_error_mm,stages\n";
   auto stage = [](const Run& r, const char* s) { return r.stage_ms.count(s) ? Num(r.stage_ms.at(s), 1) : ""; };
   // Every stage and method step ("register/pose-search=12.3;..."), for per-step profiles.
   auto steps = [](const Run& r) {
@@ -122,10 +122,10 @@ Status RunsCsv(const std::string& path, const std::vector<Run>& runs) {
   };
   auto precision = [](const Run& r) {
     const FitPrecision& p = r.precision;
-    if (!p.valid) return std::string(",,,,,");
-    return fmt::format("{},{},{},{},{},{}", Num(p.expected_error_m * 1e3, 2), Num(p.sigma_horizontal_m() * 1e3, 2),
+    if (!p.valid) return std::string(",,,,,,");
+    return fmt::format("{},{},{},{},{},{},{}", Num(p.expected_error_m * 1e3, 2), Num(p.sigma_horizontal_m() * 1e3, 2),
                        Num(p.sigma_vertical_m() * 1e3, 2), Num(p.sigma_yaw_rad() * 180.0 / std::numbers::pi, 3),
-                       Num(p.fit_error_m * 1e3, 2), Num(p.map_error_m * 1e3, 2));
+                       Num(p.fit_error_m * 1e3, 2), Num(p.map_error_m * 1e3, 2), Num(p.surface_error_m * 1e3, 2));
   };
   for (const auto& r : runs)
     out << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", r.experiment, Csv(r.method),

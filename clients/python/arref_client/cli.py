@@ -83,7 +83,7 @@ def cmd_register(args):
               f"{r.iterations} iterations, {r.server_ms:.0f} ms on the server")
         if r.expected_error_m > 0:
             print(f"  expected error {r.expected_error_m * 1e3:.1f} mm (the fit {r.fit_error_m * 1e3:.1f} mm, "
-                  f"the map {r.map_error_m * 1e3:.1f} mm)")
+                  f"the map {r.map_error_m * 1e3:.1f} mm, the surface model {r.surface_error_m * 1e3:.1f} mm)")
     return EXIT_OK if r.status in ("OK", "LOW_CONFIDENCE") else EXIT_FAILED
 
 

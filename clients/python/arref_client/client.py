@@ -95,10 +95,11 @@ class RegistrationResult:
     rms_m: float
     inlier_fraction: float
     # One standard deviation of the pose's error (root mean square over the robot's points),
-    # and its two parts: the fit's own and the headset map's (Result.expected_error_m).
+    # and its parts: the fit's own, the headset map's, the surface model's (Result.expected_error_m).
     expected_error_m: float
     fit_error_m: float
     map_error_m: float
+    surface_error_m: float
     iterations: int
     stages: list
     server_ms: float
@@ -112,7 +113,7 @@ class RegistrationResult:
         status = pb.ResultStatus.Name(r.status).replace("RESULT_STATUS_", "")
         return cls(r.request_id, status, r.robot_id, r.session_id, pose_from_proto(r.T_world_base), frame, matrix,
                    r.message, r.method, r.rms_m, r.inlier_fraction, r.expected_error_m, r.fit_error_m,
-                   r.map_error_m, r.iterations, list(r.stages), r.server_ms, r)
+                   r.map_error_m, r.surface_error_m, r.iterations, list(r.stages), r.server_ms, r)
 
     @property
     def ok(self):

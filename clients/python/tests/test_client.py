@@ -69,9 +69,11 @@ def test_register_in_ros_frame_finds_the_robot(server, cell_ros):
     np.testing.assert_allclose(r.pose[:3], r.matrix[:3, 3], atol=1e-9)
     assert r.robot_id == "kr5" and r.method == "arref-icp"
     assert stages and stages[-1] == "done"
-    # The expected error: the map's part and the fit's, added as variances (a few millimetres).
-    assert r.map_error_m > r.fit_error_m > 0
-    assert r.expected_error_m == pytest.approx(np.hypot(r.map_error_m, r.fit_error_m), rel=1e-9)
+    # The expected error: the map's, the fit's and the surface model's parts, added as variances
+    # (a few millimetres).
+    assert r.map_error_m > r.fit_error_m > 0 and r.surface_error_m > 0
+    assert r.expected_error_m == pytest.approx(
+        np.sqrt(r.map_error_m ** 2 + r.fit_error_m ** 2 + r.surface_error_m ** 2), rel=1e-9)
     assert 0.001 < r.expected_error_m < 0.015
 
 

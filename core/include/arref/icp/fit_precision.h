@@ -1,9 +1,13 @@
 // How far a gravity-aligned fit of the robot to a headset's mesh may be off, as a covariance of
-// (x, y, z, yaw) with two parts:
+// (x, y, z, yaw) with three parts:
 // - the fit's: what its own point-to-plane residuals imply (how precisely this mesh pins it);
 // - the map's: how far the headset's tracking error while it mapped moves the robot's surface in
 //   the mesh, propagated from a stated error per view (TrackingError) and the eyes the surface
-//   was seen from. No residual can show this part: the whole surface moves together.
+//   was seen from. No residual can show this part: the whole surface moves together;
+// - the surface model's: when two models of the robot's surface were fitted (arref-icp's
+//   predicted shell and its exact surface) and one kept, how far apart their fits lie. Neither
+//   is known to be right on a mesh made by another mesher, so the pose is taken to lie at either
+//   with equal chance: a covariance of delta delta^T / 4 for the poses' difference delta.
 #pragma once
 
 #include <cmath>
@@ -31,8 +35,9 @@ struct FitPrecision {
   bool valid = false;  // at least 5 pairs and a solvable system
   // Of (x, y, z, yaw), the yaw about the base's vertical axis; world frame, metres and radians.
   Eigen::Matrix4d fit_covariance = Eigen::Matrix4d::Zero();
-  Eigen::Matrix4d map_covariance = Eigen::Matrix4d::Zero();  // zero without eyes
-  Eigen::Matrix4d covariance() const { return fit_covariance + map_covariance; }
+  Eigen::Matrix4d map_covariance = Eigen::Matrix4d::Zero();      // zero without eyes
+  Eigen::Matrix4d surface_covariance = Eigen::Matrix4d::Zero();  // zero with one surface model
+  Eigen::Matrix4d covariance() const { return fit_covariance + map_covariance + surface_covariance; }
   double sigma_horizontal_m() const { return std::sqrt(covariance()(0, 0) + covariance()(1, 1)); }
   double sigma_vertical_m() const { return std::sqrt(covariance()(2, 2)); }
   double sigma_yaw_rad() const { return std::sqrt(covariance()(3, 3)); }
@@ -41,6 +46,7 @@ struct FitPrecision {
   double expected_error_m = 0.0;
   double fit_error_m = 0.0;  // the same of each part alone
   double map_error_m = 0.0;
+  double surface_error_m = 0.0;
   double residual_rms_m = 0.0;
   std::size_t pairs = 0;
   std::size_t independent_pairs = 0;  // pairs counted by correlation cells
@@ -55,9 +61,10 @@ struct FitPrecision {
 //   by t_k + w_k x (p - eye_k). A fused point moves by the mean over the eyes facing it, and the
 //   least-squares fit follows that field: delta = H^-1 J^T (n . dp). Summed over independent
 //   views, Cov = sum_k B_k S B_k^T with S = diag(position^2 I, orientation^2 I).
-// eyes_world: where the surface was seen from; empty: no map part.
+// eyes_world: where the surface was seen from; empty: no map part. T_world_base_other_surface:
+// the other surface model's fit; null: no surface part.
 FitPrecision MeasurePrecision(std::span<const Vec3f> model_base, std::span<const Vec3f> model_normals_base,
                               const TargetCloud& scene, const Iso3& T_world_base, std::span<const Vec3> eyes_world,
-                              const PrecisionSettings& settings);
+                              const Iso3* T_world_base_other_surface, const PrecisionSettings& settings);
 
 }  // namespace arref

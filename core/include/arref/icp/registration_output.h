@@ -22,6 +22,10 @@ struct RegistrationOutput {
   // Where the method took the headset to have seen the robot from while it mapped (world frame):
   // the app's head path, or the walk arref-icp chose. Empty: the method does not say.
   std::vector<Vec3> eyes_world;
+  // arref-icp fits two models of the robot's surface (the shell it predicts the headset makes,
+  // and the exact visible one) and keeps one: the pose the other gave (when has_other_surface).
+  bool has_other_surface = false;
+  Iso3 T_world_base_other_surface = Iso3::Identity();
   std::vector<std::pair<std::string, double>> step_ms;  // the method's own steps, in order (profiling)
 };
 

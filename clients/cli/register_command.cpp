@@ -147,10 +147,9 @@ void PrintHuman(const nlohmann::json& j) {
   std::printf("rms %.2f mm (%s model points), inliers %.1f %%, %d iterations, %.0f ms\n", j["rms_m"].get<double>() * 1e3,
               j["rms_points"].get<std::string>().c_str(),
               j["inlier_fraction"].get<double>() * 100, j["iterations"].get<int>(), j["timings_ms"]["total"].get<double>());
-  if (j.contains("expected_error_m"))
-    std::printf("expected error %.1f mm (the fit %.1f mm, the map %.1f mm, the surface model %.1f mm)\n",
-                j["expected_error_m"]["total"].get<double>() * 1e3, j["expected_error_m"]["fit"].get<double>() * 1e3,
-                j["expected_error_m"]["map"].get<double>() * 1e3, j["expected_error_m"]["surface"].get<double>() * 1e3);
+  if (const auto e = j.find("expected_error_m"); e != j.end())
+    std::printf("%s\n", ExpectedErrorLine((*e)["total"].get<double>(), (*e)["fit"].get<double>(), (*e)["map"].get<double>(),
+                                          (*e)["surface"].get<double>()).c_str());
   if (j.contains("add_m"))
     std::printf("vs truth: ADD %.2f mm, translation %.2f mm, rotation %.2f deg\n", j["add_m"].get<double>() * 1e3,
                 j["translation_error_m"].get<double>() * 1e3, j["rotation_error_deg"].get<double>());

@@ -1,5 +1,7 @@
 #include "client_io.h"
 
+#include <fmt/format.h>
+
 #include <cmath>
 #include <fstream>
 #include <nlohmann/json.hpp>
@@ -131,6 +133,11 @@ Status WriteJsonFile(const nlohmann::json& j, const std::string& path) {
   if (!out) return Status::IoError("cannot write " + path);
   out << j.dump(2) << "\n";
   return out ? Status::Ok() : Status::IoError("error writing " + path);
+}
+
+std::string ExpectedErrorLine(double total_m, double fit_m, double map_m, double surface_m) {
+  return fmt::format("expected error {:.1f} mm (the fit {:.1f} mm, the map {:.1f} mm, the surface model {:.1f} mm)",
+                     total_m * 1e3, fit_m * 1e3, map_m * 1e3, surface_m * 1e3);
 }
 
 }  // namespace arref

@@ -1,6 +1,7 @@
 // How the clients read and write poses, positions, matrices and joint states: as JSON (the cell
 // files `arref simulate` writes, which the `arref` command line and the mock headset both read, so
-// one reader checks them) and as the comma-separated numbers a user types for a pose.
+// one reader checks them) and as the comma-separated numbers a user types for a pose; and the
+// line both print a result's expected error as.
 #pragma once
 
 #include <nlohmann/json_fwd.hpp>
@@ -41,5 +42,9 @@ Result<FrameConvention> FrameOfFile(const nlohmann::json& file);
 // A JSON file whose top level is an object (every file arref reads is one).
 Result<nlohmann::json> ReadJsonFile(const std::string& path);
 Status WriteJsonFile(const nlohmann::json& j, const std::string& path);
+
+// "expected error 4.4 mm (the fit 0.9 mm, the map 3.7 mm, the surface model 2.3 mm)", from
+// Result.expected_error_m and its parts (metres).
+std::string ExpectedErrorLine(double total_m, double fit_m, double map_m, double surface_m);
 
 }  // namespace arref

@@ -193,9 +193,10 @@ void PrintHuman(const HeadsetRun& run) {
                              r.result.method(), r.result.rms_m() * 1e3, r.result.rms_points(),
                              r.result.inlier_fraction() * 100, r.result.iterations());
     if (r.result.expected_error_m() > 0)
-      std::cout << fmt::format("  expected error {:.1f} mm (the fit {:.1f} mm, the map {:.1f} mm, the surface model {:.1f} mm)\n",
-                               r.result.expected_error_m() * 1e3, r.result.fit_error_m() * 1e3,
-                               r.result.map_error_m() * 1e3, r.result.surface_error_m() * 1e3);
+      std::cout << "  "
+                << ExpectedErrorLine(r.result.expected_error_m(), r.result.fit_error_m(), r.result.map_error_m(),
+                                     r.result.surface_error_m())
+                << "\n";
     if (!r.result.stages().empty())
       std::cout << "  steps: " << fmt::format("{}", fmt::join(r.result.stages(), ", ")) << "\n";
     if (r.error)

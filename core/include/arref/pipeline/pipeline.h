@@ -41,8 +41,8 @@ struct RegistrationReport {
   double score = -1.0;              // method's own ranking score and ambiguity margin (-1: none)
   double margin = -1.0;
   int hypotheses = 0;
-  // How precisely the scene pins the pose, from the residuals of the visible model at it
-  // (fit_precision.h): not how far the headset's mesh itself puts the robot.
+  // How far the pose may be off (fit_precision.h): the fit's residuals, the headset map's
+  // tracking error and the surface models' disagreement. Not whether it is in the right place.
   FitPrecision precision;
   int iterations = 0;
   bool converged = false;

@@ -159,6 +159,44 @@ TEST(RegisterScene, SeedsFarBelowAndAboveTheBaseFindTheRobot) {
   }
 }
 
+// An arm on a pedestal may reach below its mounting surface. Its base rests on its fixed links
+// (RobotSide::resting_height), not on the arm's lowest point: a KR5 arc whose wrist reached 23 mm
+// below its base was fitted 25 mm too high and said OK (docs/robustness.md, "What rests on
+// the support"). Here the built-in robot's elbow reaches 15-40 mm below the base, less than a
+// voxel, so the fit would have been set on the wrong height.
+TEST(RegisterScene, AnArmReachingBelowItsBaseDoesNotLiftIt) {
+  ASSERT_OK_AND_ASSIGN(RobotModel robot, RobotModel::Load(testing::BuiltinRobotUrdf()));
+  sim::SimOptions options = sim::SmallPreset();
+  options.cell.joints = {{"joint_a3", 0.73}};
+  options.cell.pedestal_height_m = 0.5;
+  options.seed_count = 3;
+  ASSERT_OK_AND_ASSIGN(const JointValues joints, robot.CompleteJoints(options.cell.joints));
+  ASSERT_OK_AND_ASSIGN(const TriangleMesh posed, robot.PosedMesh(joints));
+  const double reach_below = -BoundsOf(posed.vertices).min.z();
+  ASSERT_GT(reach_below, 0.015);
+  ASSERT_LT(reach_below, 0.04);
+  ASSERT_OK_AND_ASSIGN(const sim::SimulatedCell cell, sim::SimulateCell(robot, options, 2));
+  for (const sim::Prop& p : cell.props)
+    if (p.kind == "pedestal") {
+      EXPECT_LT(p.bounds_cell.min.x(), 0.0f) << "the pedestal stands under the base, not under the elbow";
+      EXPECT_GT(p.bounds_cell.max.x(), 0.0f);
+    }
+  SpatialMesh map;
+  for (const Surface& s : cell.surfaces) ASSERT_TRUE(map.Upsert(s).ok());
+  const TriangleMesh scene = *map.MergedWorld();
+  const RegistrationOptions defaults;
+  ASSERT_OK_AND_ASSIGN(const auto side, RobotSide::Create(robot, cell.joints, defaults.model_samples, defaults.sample_seed));
+  EXPECT_DOUBLE_EQ(side->resting_height(), 0.0);
+  for (std::size_t i = 0; i < cell.seeds.size(); ++i) {
+    ASSERT_OK_AND_ASSIGN(const RegistrationReport report, RegisterScene(*side, scene, cell.seeds[i], defaults));
+    const double dz = report.T_world_base.translation().z() - cell.T_world_base.translation().z();
+    const double add = ComparePoses(report.T_world_base, cell.T_world_base, side->samples().points).add_m;
+    RecordProperty("add_mm_seed_" + std::to_string(i), std::to_string(add * 1e3));
+    EXPECT_LT(std::abs(dz), 0.008) << "seed " << i << ": the base's height";
+    EXPECT_LT(add, kAddGoalM) << "seed " << i;
+  }
+}
+
 // The pose search settles only the hypotheses that scored best once captured: fewer ICP
 // iterations than settling all of them, the same robot found from a seed turned 150 degrees.
 TEST(RegisterScene, PoseSearchSettlesOnlyTheBestCapturedHypotheses) {

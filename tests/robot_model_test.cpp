@@ -469,5 +469,26 @@ TEST(JointMotion, ChooseMovingFitNeedsMuchMovedAndAFirmHeadingFromWhatStoodStill
   EXPECT_EQ(none.unmoved.size(), robot.GeometryLinks().size());
 }
 
+// What a robot stands on is its fixed links: an arm reaching below its mounting surface (from
+// a pedestal) does not lower it. The built-in robot's base casting ends at its origin; the test
+// robot's fixed links are its base (a unit cube) and a cube scaled to 2 m, bolted to it.
+TEST(JointMotion, TheRobotRestsOnItsFixedLinksNotOnAnArmReachingBelowThem) {
+  const RobotModel builtin = LoadOrDie(testing::BuiltinRobotUrdf());
+  using Links = std::set<std::string>;
+  ASSERT_OK_AND_ASSIGN(const Links fixed, FixedLinks(builtin));
+  EXPECT_EQ(fixed, (Links{"base_link"}));
+  ASSERT_OK_AND_ASSIGN(const TriangleMesh reaching, builtin.PosedMesh({{"joint_a2", 0.3}, {"joint_a3", 1.0}}));
+  ASSERT_LT(BoundsOf(reaching.vertices).min.z(), -0.3) << "the wrist reaches below the base";
+  ASSERT_OK_AND_ASSIGN(const double rest, RestingHeight(builtin));
+  EXPECT_DOUBLE_EQ(rest, 0.0);
+
+  const testing::ScopedTempDir tmp;
+  const RobotModel test_bot = LoadOrDie(WriteTestUrdf(tmp.path()));
+  ASSERT_OK_AND_ASSIGN(const Links bolted, FixedLinks(test_bot));
+  EXPECT_EQ(bolted, (Links{"base", "scaled"})) << "the slider and its wheel move";
+  ASSERT_OK_AND_ASSIGN(const double low, RestingHeight(test_bot));
+  EXPECT_NEAR(low, -1.0, 1e-6) << "a fixed link below the origin: its lowest point";
+}
+
 }  // namespace
 }  // namespace arref

@@ -8,6 +8,7 @@
 #include "arref/fusion/model_reconstruction.h"
 #include "arref/fusion/model_visibility.h"
 #include "arref/fusion/robot_side.h"
+#include "arref/robot/joint_motion.h"
 #include "arref/scene/sampling.h"
 
 namespace arref {
@@ -47,8 +48,12 @@ ReconstructionOptions WalkOptions(double voxel_m, int walk) {
 ReconstructionOptions RefitOptions(double voxel_m, int walk) { return EyesOf(voxel_m, walk, kRefitArcDeg, 24, 24); }
 }  // namespace
 
-RobotSide::RobotSide(TriangleMesh mesh_base, PointCloud samples, std::uint64_t seed, bool partial)
-    : mesh_base_(std::move(mesh_base)), samples_(std::move(samples)), seed_(seed), partial_(partial) {}
+RobotSide::RobotSide(TriangleMesh mesh_base, PointCloud samples, std::uint64_t seed, bool partial, double resting_height)
+    : mesh_base_(std::move(mesh_base)),
+      samples_(std::move(samples)),
+      seed_(seed),
+      partial_(partial),
+      resting_height_(resting_height) {}
 
 Result<PointCloud> SamplePosedRobot(const TriangleMesh& mesh_base, const std::string& name, std::size_t samples,
                                     std::uint64_t seed) {
@@ -72,7 +77,9 @@ Result<std::shared_ptr<const RobotSide>> RobotSide::Create(const RobotModel& rob
   ARREF_ASSIGN_OR_RETURN(TriangleMesh mesh, links ? robot.PosedMesh(joints, *links) : robot.PosedMesh(joints));
   ARREF_ASSIGN_OR_RETURN(PointCloud cloud, SamplePosedRobot(mesh, robot.name(), samples, seed));
   const bool partial = links && links->size() < robot.GeometryLinks().size();
-  return std::shared_ptr<const RobotSide>(new RobotSide(std::move(mesh), std::move(cloud), seed, partial));
+  ARREF_ASSIGN_OR_RETURN(const double resting_height, RestingHeight(robot));
+  return std::shared_ptr<const RobotSide>(
+      new RobotSide(std::move(mesh), std::move(cloud), seed, partial, resting_height));
 }
 
 Result<std::shared_ptr<const PointCloud>> RobotSide::Expected(double voxel_m, int walk, std::size_t thinned_to,

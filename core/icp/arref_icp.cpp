@@ -43,23 +43,27 @@ struct Candidate {
 };
 
 // The heights an upright base may stand at: on each horizontal support near the seed (floor,
-// pedestal or table top) within reach of the seed's height error, its lowest model point on it.
+// pedestal or table top) within reach of the seed's height error, its resting surface on it.
 std::vector<double> SupportedBaseHeights(const ArrefIcpInput& in) {
   const PointCloud& model = in.model_base;
   const ArrefIcpParams& p = in.params;
   if (!p.support_search) return {};
   const Vec3 seed = in.T_world_seed.translation();
-  // The base frame's origin sits on its mounting surface; a model with parts below it rests on
-  // its lowest point instead.
-  float z_min = 0.0f;
-  for (const Vec3f& q : model.points) z_min = std::min(z_min, q.z());
+  // The robot side knows which links stand still (RestingHeight); a bare model rests on the
+  // origin of its base frame, or on its lowest point when something lies below it.
+  double z_min = 0.0;
+  if (in.robot) {
+    z_min = in.robot->resting_height();
+  } else {
+    for (const Vec3f& q : model.points) z_min = std::min(z_min, static_cast<double>(q.z()));
+  }
   SupportSearch search;
   search.centre = seed;
   search.radius_m = 1.5 * p.seed_error_m;
   std::vector<double> heights;
   for (const Support& s : FindSupports(in.scene_world, search))
     if (std::abs(s.z - seed.z()) <= p.seed_error_m + p.support_margin_m) heights.push_back(s.z - z_min);
-  spdlog::debug("arref-icp: {} supported base heights (model's lowest point {:.3f} m)", heights.size(), z_min);
+  spdlog::debug("arref-icp: {} supported base heights (resting on {:.3f} m of the base frame)", heights.size(), z_min);
   return heights;
 }
 

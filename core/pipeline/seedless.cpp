@@ -35,14 +35,15 @@ struct RobotSize {
   Aabb box;
   double largest_side = 0;
   double footprint_radius = 0;  // half the diagonal of what lies in its lowest tenth
-  float z_min = 0;
+  float z_min = 0;  // the surface it stands on (RobotSide::resting_height)
 };
 
-RobotSize SizeOf(const PointCloud& model) {
+RobotSize SizeOf(const RobotSide& robot) {
+  const PointCloud& model = robot.samples();
   RobotSize s;
   for (const Vec3f& p : model.points) s.box.Extend(p);
   s.largest_side = (s.box.max - s.box.min).maxCoeff();
-  s.z_min = std::min(0.0f, s.box.min.z());
+  s.z_min = static_cast<float>(robot.resting_height());
   const float low = s.box.min.z() + 0.1f * (s.box.max.z() - s.box.min.z());
   Aabb foot;
   for (const Vec3f& p : model.points)
@@ -342,7 +343,7 @@ Result<WholeMapReport> AutoSearch(const RobotSide& robot, const TriangleMesh& sc
   Stages stages(&out, progress);
   stages.Start("map-sample", 0.0);
   const double voxel = options.arref_icp.expected_voxel_m > 0 ? options.arref_icp.expected_voxel_m : MedianEdgeLength(scene_world);
-  const RobotSize size = SizeOf(robot.samples());
+  const RobotSize size = SizeOf(robot);
   const double cell = std::max(voxel, p.cell_fraction * size.largest_side);
   const double area = scene_world.SurfaceArea();
   const auto samples = static_cast<std::size_t>(std::min<double>(static_cast<double>(p.max_map_samples),

@@ -1,6 +1,7 @@
 #include "arref/robot/joint_motion.h"
 
 #include <algorithm>
+#include <numbers>
 
 namespace arref {
 namespace {
@@ -60,6 +61,22 @@ Result<std::set<std::string>> UnmovedLinks(const RobotModel& robot, const JointV
     }
   }
   return unmoved;
+}
+
+Result<std::set<std::string>> FixedLinks(const RobotModel& robot) {
+  JointRanges every;
+  for (const JointInfo& j : robot.ActuatedJoints())
+    if (j.mimic_of.empty())  // a mimic joint moves with the joint it follows
+      every[j.name] = j.has_limits ? std::pair{j.lower, j.upper} : std::pair{-std::numbers::pi / 2, std::numbers::pi / 2};
+  return UnmovedLinks(robot, {}, every, 0.0);
+}
+
+Result<double> RestingHeight(const RobotModel& robot) {
+  ARREF_ASSIGN_OR_RETURN(const std::set<std::string> fixed, FixedLinks(robot));
+  if (fixed.empty()) return 0.0;
+  // No joint moves these links, so any joint values pose them: the defaults.
+  ARREF_ASSIGN_OR_RETURN(const TriangleMesh base, robot.PosedMesh({}, fixed));
+  return base.empty() ? 0.0 : std::min(0.0, static_cast<double>(BoundsOf(base.vertices).min.z()));
 }
 
 Result<MovingFit> ChooseMovingFit(const RobotModel& robot, const JointValues& at, const JointRanges& ranges,

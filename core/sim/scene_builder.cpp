@@ -6,6 +6,9 @@
 #include <cmath>
 #include <limits>
 #include <numbers>
+#include <set>
+
+#include "arref/robot/joint_motion.h"
 
 namespace arref::sim {
 namespace {
@@ -253,8 +256,14 @@ Result<CellScene> BuildCellScene(const RobotModel& robot, const CellOptions& opt
   if (posed->empty()) return Status::FailedPrecondition("robot '" + robot.name() + "' has no geometry to simulate");
 
   scene.T_cell_base = MakeYawPose(0, 0, options.pedestal_height_m, options.base_yaw_deg * std::numbers::pi / 180);
-  TriangleMesh headed;  // the posed robot turned to its heading, for its footprint in the cell
-  headed.Append(*posed, Iso3(scene.T_cell_base.linear()));
+  // What stands on the floor or pedestal: the fixed links (the arm may reach below them).
+  ARREF_ASSIGN_OR_RETURN(const std::set<std::string> fixed, FixedLinks(robot));
+  TriangleMesh standing;
+  if (!fixed.empty()) {
+    ARREF_ASSIGN_OR_RETURN(standing, robot.PosedMesh(scene.joints, fixed));
+  }
+  TriangleMesh headed;  // turned to the robot's heading, for its footprint in the cell
+  headed.Append(standing.empty() ? *posed : standing, Iso3(scene.T_cell_base.linear()));
   scene.footprint_cell = Translated(FootprintOf(headed), scene.T_cell_base.translation());
   // Without the robot the footprint stays reserved, so the rest of the cell is laid out alike.
   if (options.robot_present) {

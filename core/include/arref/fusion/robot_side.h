@@ -39,6 +39,8 @@ class RobotSide {
   const PointCloud& samples() const { return samples_; }
   // Made from some of the robot's links only (Create's links).
   bool partial() const { return partial_; }
+  // Base frame height of the surface the robot stands on (RestingHeight, joint_motion.h).
+  double resting_height() const { return resting_height_; }
   // Cached per millimetre of voxel size and walk; thread-safe. walk -1: all round; k in
   // [0, kWalks): a 216 degree arc centred at k * 360 / kWalks degrees. thinned_to > 0: at most
   // that many of its points (Thinned), as a method fits them. The first call for a voxel size
@@ -66,7 +68,7 @@ class RobotSide {
   static std::vector<Vec3> RefitEyes(int walk);
 
  private:
-  RobotSide(TriangleMesh mesh_base, PointCloud samples, std::uint64_t seed, bool partial);
+  RobotSide(TriangleMesh mesh_base, PointCloud samples, std::uint64_t seed, bool partial, double resting_height);
   using ExpectedKey = std::tuple<long, int, std::size_t>;  // voxel in mm, walk, thinned_to
   Result<std::shared_ptr<const PointCloud>> ExpectedLocked(const ExpectedKey& key,
                                                            const CancelToken* cancel) const;  // under mutex_
@@ -78,6 +80,7 @@ class RobotSide {
   PointCloud samples_;
   std::uint64_t seed_;
   bool partial_ = false;
+  double resting_height_ = 0.0;
   mutable std::mutex mutex_;
   mutable std::shared_ptr<const ExpectedSurfaceMaker> maker_;  // made on first use
   mutable std::map<ExpectedKey, std::shared_ptr<const PointCloud>> expected_;

@@ -41,6 +41,16 @@ inline void WidenRange(JointRanges& ranges, const std::string& joint, double lo,
 Result<std::set<std::string>> UnmovedLinks(const RobotModel& robot, const JointValues& at, const JointRanges& ranges,
                                            double min_range);
 
+// The links with geometry that no actuated joint moves, at any value within its limits: the
+// base casting and what is bolted to it. Empty when every link with geometry moves.
+Result<std::set<std::string>> FixedLinks(const RobotModel& robot);
+
+// The height in the base frame of the surface the robot stands on. The base frame's origin sits
+// on the mounting surface (the ROS-Industrial convention every vendor package here keeps); a
+// fixed link reaching below it rests on its own lowest point instead. Only the fixed links
+// count: an arm on a pedestal may reach below its mounting surface without lifting its base.
+Result<double> RestingHeight(const RobotModel& robot);
+
 // What a one-shot fit rests on when the joints moved by more than min_range while the map was
 // made. The unmoved links, when the moving ones hold at least min_moved_share of the model's
 // surface and the unmoved ones fix the heading on a mesh of this resolution: their yaw leverage

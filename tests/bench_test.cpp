@@ -4,6 +4,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iostream>
+#include <iterator>
 #include <map>
 
 #include "test_support.h"
@@ -157,6 +158,38 @@ TEST(Bench, RobustnessQuickHasRowsPerRobotAndMesher) {
   ASSERT_NE(all, nullptr);
   EXPECT_EQ(std::stoul(all->at("runs")), 6 * robots.size());
   EXPECT_GT(Percent(all->at("ADD<=20mm")), 0.0);
+}
+
+// `--robust-pedestals`: half the cells stand the arm on a 0.2-0.7 m pedestal (and one that reaches
+// below its base on one that clears it), the rest on the floor; the search finds the base on the
+// pedestal's top from user-like seeds drawn round the base.
+TEST(Bench, RobustnessWithPedestalsStandsArmsOnThem) {
+  const std::string out = ::testing::TempDir() + "/arref_bench_pedestals";
+  std::filesystem::remove_all(out);
+  const auto r = testing::RunCommand(std::string(ARREF_BINARY_DIR) +
+                                     "/clients/cli/arref --log-level info bench --only robustness --robots builtin "
+                                     "--meshers own --seed-families user --robust-cells 6 --robust-seeds 1 "
+                                     "--robust-pedestals --out " + out);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const std::string log = r.out + r.err;
+  int on_floor = 0, on_pedestal = 0;
+  for (std::size_t at = log.find(", pedestal "); at != std::string::npos; at = log.find(", pedestal ", at + 1)) {
+    const double height = std::stod(log.substr(at + 11));
+    EXPECT_GE(height, 0.0);
+    EXPECT_LE(height, 1.0) << "0.2-0.7 m drawn, or what clears an arm's reach below its base";
+    (height > 0 ? on_pedestal : on_floor) += 1;
+  }
+  EXPECT_EQ(on_floor + on_pedestal, 6) << log;
+  EXPECT_GT(on_pedestal, 0);
+  EXPECT_GT(on_floor, 0);
+  std::ifstream md(out + "/robustness.md");
+  const std::string report((std::istreambuf_iterator<char>(md)), std::istreambuf_iterator<char>());
+  EXPECT_NE(report.find("arms on pedestals"), std::string::npos);
+  const Table t = ReadCsv(out + "/robustness.csv");
+  const auto* all = Find(t, "robot", "all", "mesher", "all");
+  ASSERT_NE(all, nullptr);
+  EXPECT_EQ(all->at("runs"), "6");
+  EXPECT_EQ(Percent(all->at("ADD<=20mm")), 100.0) << "every base found on its pedestal or floor";
 }
 
 }  // namespace

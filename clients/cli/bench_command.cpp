@@ -47,6 +47,7 @@ struct BenchArgs {
   int robust_seeds = 2;
   std::vector<std::string> robust_without;
   std::string mapping_motion = "none", moving_fit = "auto";
+  bool robust_pedestals = false;
   std::string auto_methods = "arref-auto,sliding-box-shot,super4pcs,fpfh-ransac";
   int auto_rooms = 2;
   std::vector<int> auto_arms = {0, 1, 2};
@@ -95,6 +96,7 @@ int Run(const BenchArgs& args) {
   rc.without = args.robust_without;
   rc.motion = args.mapping_motion;
   rc.moving_fit = args.moving_fit;
+  rc.pedestals = args.robust_pedestals;
   rc.package_path = args.robot.package_path;
   auto auto_methods = ParseMethodList(args.auto_methods, "--auto-methods");
   if (!auto_methods.ok()) return Fail(auto_methods.status());
@@ -234,6 +236,9 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
                   "Robustness, with --mapping-motion: what the fit rests on (auto: the product's choice; whole: the "
                   "whole model at the final joints; unmoved: the links no moving joint carries)")
       ->check(CLI::IsMember({"auto", "whole", "unmoved"}))->capture_default_str();
+  cmd->add_flag("--robust-pedestals", args->robust_pedestals,
+               "Robustness: stand the arm on a 0.2-0.7 m pedestal in half the cells, and always when it reaches "
+               "below its base (default: every arm on the floor, as draws measured before it)");
   cmd->add_option("--auto-methods", args->auto_methods,
                   "Auto experiment (seedless, whole rooms; runs only when --only names it): methods, comma-separated")
       ->capture_default_str();

@@ -52,6 +52,10 @@ struct RobustnessConfig {
   // What a fit on such a map rests on: auto (the product's choice, MovingFitLinks), whole (the
   // whole model at the final joints), unmoved (only the links no moving joint carries).
   std::string moving_fit = "auto";
+  // Arms on pedestals: half the cells stand the robot on one 0.2-0.7 m high, and an arm that
+  // reaches below its base always on one that clears its reach. Off by default, so that draws
+  // stay comparable with those measured before it existed.
+  bool pedestals = false;
 };
 
 // The tracking experiment: robots as RobustnessConfig's, with its split.
@@ -198,11 +202,10 @@ Status TrackExperiment(const Config& config, Tables* tables);       // robots x 
 
 // One bench cell of `kind` (as MakeCells makes them) simulated from `seed` by `mesher`; the
 // model side is shared when given (the same robot and joints), else built.
-// leave_out: headset errors taken out (sim::LeaveOutErrors).
-// motion: RobustnessConfig::motion, moving_fit: RobustnessConfig::moving_fit.
+// rc: the headset errors taken out (without), the joints' motion while mapping and what the fit
+// rests on then (motion, moving_fit), and the pedestals.
 Result<Cell> MakeCell(const RobotModel& robot, const std::string& kind, int index, std::uint64_t seed, sim::Mesher mesher,
-                      std::shared_ptr<const RobotSide> robot_side = nullptr, const std::vector<std::string>& leave_out = {},
-                      const std::string& motion = "none", const std::string& moving_fit = "auto");
+                      std::shared_ptr<const RobotSide> robot_side, const RobustnessConfig& rc);
 
 Status WriteReport(const Config& config, const Tables& tables, const std::string& command_line);
 

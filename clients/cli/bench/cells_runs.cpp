@@ -170,6 +170,22 @@ sim::MappingMotion DrawMotion(const RobotModel& robot, const std::string& motion
   return m;
 }
 
+// A pedestal under half the cells, 0.2-0.7 m high (as the seedless rooms mount arms), from a
+// stream of the cell's own so that the rest of the cell is drawn as without it. An arm that
+// reaches below its base must stand on one that clears that reach by 5 cm, as a real cell's would.
+Result<double> DrawPedestal(const RobotModel& robot, const JointValues& joints, std::uint64_t seed) {
+  std::mt19937_64 rng(SplitMix64(seed ^ 0x50454445u));
+  std::uniform_real_distribution<double> unit(0.0, 1.0);
+  const bool mounted = unit(rng) < 0.5;
+  const double drawn = 0.2 + 0.5 * unit(rng);
+  ARREF_ASSIGN_OR_RETURN(const TriangleMesh posed, robot.PosedMesh(robot.ClampedToLimits(joints)));
+  ARREF_ASSIGN_OR_RETURN(const double rest, RestingHeight(robot));
+  const double reach_below = posed.empty() ? 0.0 : rest - BoundsOf(posed.vertices).min.z();
+  double height = mounted ? drawn : 0.0;
+  if (reach_below > 0) height = std::max(height, reach_below + 0.05);
+  return height;
+}
+
 // The model side a fit on this cell rests on (RobustnessConfig::moving_fit), chosen from what
 // a server knows: the joint ranges a stream sent while the user mapped, and the map's edges.
 // Marks the cell's map as not showing the robot as posed when much of it moved (as the server).
@@ -197,25 +213,27 @@ Status SetCellRobotSide(const RobotModel& robot, const std::string& moving_fit, 
 }  // namespace
 
 Result<Cell> MakeCell(const RobotModel& robot, const std::string& kind, int index, std::uint64_t seed, sim::Mesher mesher,
-                      std::shared_ptr<const RobotSide> robot_side, const std::vector<std::string>& leave_out,
-                      const std::string& motion, const std::string& moving_fit) {
+                      std::shared_ptr<const RobotSide> robot_side, const RobustnessConfig& rc) {
   auto options = OptionsFor(kind, "small");
   if (!options.ok()) return options.status();
   std::mt19937_64 rng(seed);
   options->cell.joints = RandomJoints(robot, rng);
-  options->cell.motion = DrawMotion(robot, motion, seed);
+  options->cell.motion = DrawMotion(robot, rc.motion, seed);
+  if (rc.pedestals) {
+    ARREF_ASSIGN_OR_RETURN(options->cell.pedestal_height_m, DrawPedestal(robot, options->cell.joints, seed));
+  }
   options->seed_count = 0;  // the experiment draws its seeds by family
   options->fusion.mesher = mesher;
-  ARREF_RETURN_IF_ERROR(sim::LeaveOutErrors(leave_out, seed, &*options));
+  ARREF_RETURN_IF_ERROR(sim::LeaveOutErrors(rc.without, seed, &*options));
   auto sim = sim::SimulateCell(robot, *options, seed);
   if (!sim.ok()) return sim.status().WithContext("bench cell " + kind + " " + std::to_string(index) + " of " + robot.name());
   Cell cell{kind, "small", index, std::move(*sim), {}, std::move(robot_side)};
   SpatialMesh map;
   for (auto& s : cell.sim.surfaces) ARREF_RETURN_IF_ERROR(map.Upsert(s));
   cell.scene_world = *map.MergedWorld();
-  if (!cell.robot) ARREF_RETURN_IF_ERROR(SetCellRobotSide(robot, moving_fit, &cell));
-  spdlog::info("bench: {} cell '{}' #{} ({} mesher): {} triangles", robot.name(), kind, index, sim::MesherName(mesher),
-               cell.scene_world.triangles.size());
+  if (!cell.robot) ARREF_RETURN_IF_ERROR(SetCellRobotSide(robot, rc.moving_fit, &cell));
+  spdlog::info("bench: {} cell '{}' #{} ({} mesher): {} triangles, pedestal {:.2f} m", robot.name(), kind, index,
+               sim::MesherName(mesher), cell.scene_world.triangles.size(), options->cell.pedestal_height_m);
   if (mesher == sim::Mesher::kOpen3d) {
     const sim::DeviceVariation& d = cell.sim.device;
     spdlog::info("bench:   device: voxel {:.3f} m, {:.0f} triangles/m^3, quantum {:.4f} m, {:.2f} m surfaces at {} times, "

@@ -228,7 +228,7 @@ Status RobustnessExperiment(const Config& config, Tables* tables) {
       const std::uint64_t cell_seed = SplitMix64(stream ^ SplitMix64(std::hash<std::string>{}(robot.label)) ^ SplitMix64(static_cast<std::uint64_t>(i) + 1));
       std::shared_ptr<const RobotSide> side;
       for (sim::Mesher mesher : meshers) {
-        auto cell = MakeCell(*robot.model, kind, i, cell_seed, mesher, side, rc.without, rc.motion, rc.moving_fit);
+        auto cell = MakeCell(*robot.model, kind, i, cell_seed, mesher, side, rc);
         if (!cell.ok()) return cell.status();
         if (rc.motion == "none") side = cell->robot;  // else chosen per mesh (SetCellRobotSide)
         cells.push_back(std::move(*cell));
@@ -277,8 +277,9 @@ Status RobustnessExperiment(const Config& config, Tables* tables) {
   }
   tables->notes.push_back(fmt::format("robustness: {} split{}, robots {}, {} cell(s) per robot and mesher, {} seed(s) per family",
                                       rc.split,
-                                      rc.motion == "none" ? std::string()
-                                                          : fmt::format(" (joints moving while mapping: {}; fit: {})", rc.motion, rc.moving_fit), fmt::join([&] {
+                                      (rc.motion == "none" ? std::string()
+                                                           : fmt::format(" (joints moving while mapping: {}; fit: {})", rc.motion, rc.moving_fit)) +
+                                          (rc.pedestals ? " (arms on pedestals)" : ""), fmt::join([&] {
                                         std::vector<std::string> names;
                                         for (const auto& r : *robots) names.push_back(r.label);
                                         return names;

@@ -161,8 +161,8 @@ TEST(RegisterScene, SeedsFarBelowAndAboveTheBaseFindTheRobot) {
 
 // An arm on a pedestal may reach below its mounting surface. Its base rests on its fixed links
 // (RobotSide::resting_height), not on the arm's lowest point: a KR5 arc whose wrist reached 23 mm
-// below its base was fitted 25 mm too high and said OK (docs/robustness.md, "What rests on
-// the support"). Here the built-in robot's elbow reaches 15-40 mm below the base, less than a
+// below its base was fitted 25 mm too high and said OK (docs/robustness.md, "What the base
+// rests on"). Here the built-in robot's elbow reaches 15-40 mm below the base, less than a
 // voxel, so the fit would have been set on the wrong height.
 TEST(RegisterScene, AnArmReachingBelowItsBaseDoesNotLiftIt) {
   ASSERT_OK_AND_ASSIGN(RobotModel robot, RobotModel::Load(testing::BuiltinRobotUrdf()));

@@ -34,7 +34,7 @@ constexpr std::size_t kMaxSupports = 32;  // one bit each in a column's mask
 struct RobotSize {
   Aabb box;
   double largest_side = 0;
-  double footprint_radius = 0;  // half the diagonal of what lies in its lowest tenth
+  double footprint_radius = 0;  // half the diagonal of what lies in its lowest tenth, on its support
   float z_min = 0;  // the surface it stands on (RobotSide::resting_height)
 };
 
@@ -44,10 +44,12 @@ RobotSize SizeOf(const RobotSide& robot) {
   for (const Vec3f& p : model.points) s.box.Extend(p);
   s.largest_side = (s.box.max - s.box.min).maxCoeff();
   s.z_min = static_cast<float>(robot.resting_height());
-  const float low = s.box.min.z() + 0.1f * (s.box.max.z() - s.box.min.z());
+  // The lowest tenth above the surface it stands on: an arm reaching below that surface (from a
+  // pedestal) is not what stands on it.
+  const float low = s.z_min + 0.1f * (s.box.max.z() - s.z_min);
   Aabb foot;
   for (const Vec3f& p : model.points)
-    if (p.z() <= low) foot.Extend(p);
+    if (p.z() >= s.z_min - 1e-3f && p.z() <= low) foot.Extend(p);
   s.footprint_radius = foot.valid() ? 0.5 * (foot.max - foot.min).head<2>().norm() : 0.1 * s.largest_side;
   return s;
 }

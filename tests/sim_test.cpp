@@ -107,8 +107,6 @@ bool SameSurfaces(const SimulatedCell& a, const SimulatedCell& b) {
   return true;
 }
 
-double WrapAngle(double a) { return std::remainder(a, 2 * std::numbers::pi); }
-
 TEST(CellSimulator, SameSeedGivesSameCellAndDifferentSeedDoesNot) {
   const SimOptions o = SmallOptions();
   auto again = SimulateCell(BuiltinRobot(), o, 1);

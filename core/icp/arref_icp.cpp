@@ -225,7 +225,7 @@ Result<std::vector<Candidate>> CoarseSearch(const PointCloud& coarse, const Targ
 }
 
 bool SamePose(const Iso3& a, const Iso3& b) {
-  const double dyaw = std::abs(std::remainder(YawOf(a) - YawOf(b), 2 * std::numbers::pi));
+  const double dyaw = std::abs(WrapAngle(YawOf(a) - YawOf(b)));
   return (a.translation() - b.translation()).norm() < 0.05 && dyaw < 10 * std::numbers::pi / 180;
 }
 

@@ -71,7 +71,7 @@ Eigen::Matrix4d MapCovariance(const std::vector<Pair>& pairs, const Eigen::Matri
 // their mean: delta delta^T / 4, delta their difference in (x, y, z, yaw).
 Eigen::Matrix4d SurfaceCovariance(const Iso3& T_world_base, const Iso3& T_other) {
   const Vec3 dt = T_other.translation() - T_world_base.translation();
-  const double yaw = std::remainder(YawOf(T_other) - YawOf(T_world_base), 2 * std::numbers::pi);
+  const double yaw = WrapAngle(YawOf(T_other) - YawOf(T_world_base));
   const Vec4d delta(dt.x(), dt.y(), dt.z(), yaw);
   return delta * delta.transpose() / 4.0;
 }

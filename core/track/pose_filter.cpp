@@ -3,14 +3,8 @@
 #include <Eigen/Cholesky>
 
 #include <cmath>
-#include <numbers>
 
 namespace arref {
-
-double WrapAngle(double a) {
-  a = std::remainder(a, 2 * std::numbers::pi);
-  return a <= -std::numbers::pi ? a + 2 * std::numbers::pi : a;
-}
 
 Vec4 PoseToState(const Iso3& T) {
   const Vec3 t = T.translation();

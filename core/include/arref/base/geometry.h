@@ -6,6 +6,7 @@
 #include <array>
 #include <cmath>
 #include <limits>
+#include <numbers>
 #include <cstdint>
 #include <vector>
 
@@ -64,5 +65,10 @@ Iso3 MakePose(const Vec3& position, const Quat& orientation);
 Iso3 MakeYawPose(double x, double y, double z, double yaw);
 // Heading of T's x axis about +z, in radians in (-pi, pi]: the yaw MakeYawPose takes.
 inline double YawOf(const Iso3& T) { return std::atan2(T.linear()(1, 0), T.linear()(0, 0)); }
+// An angle (radians) into (-pi, pi]: the difference of two yaws as a turn.
+inline double WrapAngle(double a) {
+  a = std::remainder(a, 2 * std::numbers::pi);
+  return a <= -std::numbers::pi ? a + 2 * std::numbers::pi : a;
+}
 
 }  // namespace arref

@@ -18,7 +18,6 @@ using Mat4 = Eigen::Matrix4d;
 // (x, y, z, yaw) of a gravity-aligned pose; its roll and pitch are dropped.
 Vec4 PoseToState(const Iso3& T);
 Iso3 StateToPose(const Vec4& s);
-double WrapAngle(double a);  // into (-pi, pi]
 
 struct PoseFilterSettings {
   // Random-walk process noise per second: how fast head-tracking drift may move the world.

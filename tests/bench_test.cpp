@@ -1,6 +1,7 @@
 // `arref bench --quick` end to end: every file, every table row, and numbers that make sense.
 #include <gtest/gtest.h>
 
+#include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -48,7 +49,24 @@ const std::map<std::string, std::string>* Find(const Table& t, const std::string
   return nullptr;
 }
 
-double Percent(const std::string& s) { return std::stod(s.substr(0, s.find(' '))); }
+// A table cell as a number; a cell that is not one ("-" where no run gave a pose) fails the test
+// naming the cell, instead of throwing a bare std::invalid_argument("stod").
+double Number(const std::string& s, const std::string& what) {
+  try {
+    std::size_t used = 0;
+    const double v = std::stod(s, &used);
+    if (used > 0) return v;
+  } catch (const std::exception&) {
+  }
+  ADD_FAILURE() << what << ": '" << s << "' is not a number";
+  return std::nan("");
+}
+
+double Cell(const std::map<std::string, std::string>& row, const std::string& key) {
+  return Number(row.at(key), key);
+}
+
+double Percent(const std::string& s) { return Number(s.substr(0, s.find(' ')), s); }
 
 TEST(Bench, QuickRunWritesSaneTables) {
   const testing::ScopedTempDir tmp;
@@ -68,8 +86,8 @@ TEST(Bench, QuickRunWritesSaneTables) {
       EXPECT_NE(run.at("steps").find("register/pose-search="), std::string::npos) << run.at("steps");
       // ... and it says what ran and how far it may be off.
       EXPECT_NE(run.at("stages").find("arref-icp"), std::string::npos) << run.at("stages");
-      EXPECT_GT(std::stod(run.at("expected_error_mm")), 0.0);
-      EXPECT_GT(std::stod(run.at("map_error_mm")), 0.0);
+      EXPECT_GT(Cell(run, "expected_error_mm"), 0.0);
+      EXPECT_GT(Cell(run, "map_error_mm"), 0.0);
     }
   }
   EXPECT_GE(pictures, 2);  // pcl-icp always gives a pose
@@ -81,12 +99,21 @@ TEST(Bench, QuickRunWritesSaneTables) {
     EXPECT_GT(std::filesystem::file_size(out + "/translation.png"), 1000u);
   }
 
-  // Table I: one row per swept method and size, RMS ordered and positive.
+  // Table I: one row per swept method and size, RMS ordered and positive. Super4PCS may find no
+  // pose on any run: it gives up after its bases or its time budget, and on a loaded machine (CI
+  // runs the suite two at a time) the budget cuts it short. Then its RMS cells say so with "-".
   const Table t1 = ReadCsv(out + "/table1.csv");
   for (const char* method : {"pcl-icp", "super4pcs"}) {
     const auto* row = Find(t1, "method", method, "size", "small");
     ASSERT_NE(row, nullptr) << method;
-    const double mn = std::stod(row->at("RMS min")), mean = std::stod(row->at("RMS mean mm")), mx = std::stod(row->at("RMS max"));
+    const double runs = Cell(*row, "runs"), errors = Cell(*row, "errors (segmentation)");
+    EXPECT_EQ(runs, 16.0) << method;
+    if (errors == runs && std::string(method) == "super4pcs") {
+      for (const char* key : {"RMS min", "RMS mean mm", "RMS max"}) EXPECT_EQ(row->at(key), "-") << method << " " << key;
+      continue;
+    }
+    EXPECT_LT(errors, runs) << method << ": PCL ICP always ends with a pose";
+    const double mn = Cell(*row, "RMS min"), mean = Cell(*row, "RMS mean mm"), mx = Cell(*row, "RMS max");
     EXPECT_GT(mn, 0.5) << method;  // a coarse headset mesh never fits to under a millimetre
     EXPECT_LE(mn, mean);
     EXPECT_LE(mean, mx);
@@ -99,8 +126,8 @@ TEST(Bench, QuickRunWritesSaneTables) {
   ASSERT_NE(Find(t3, "method", "user guess", "set", "all"), nullptr);
   for (const char* set : {"all", "rotation", "translation"}) ASSERT_NE(Find(t3, "method", "pcl-icp", "set", set), nullptr) << set;
   // ICP improves on the guess it starts from, by the paper's metric.
-  EXPECT_LT(std::stod(Find(t3, "method", "pcl-icp", "set", "all")->at("RMS mean mm")),
-            std::stod(Find(t3, "method", "user guess", "set", "all")->at("RMS mean mm")));
+  EXPECT_LT(Cell(*Find(t3, "method", "pcl-icp", "set", "all"), "RMS mean mm"),
+            Cell(*Find(t3, "method", "user guess", "set", "all"), "RMS mean mm"));
 
   // Scenes: ICP from user-like seeds succeeds sometimes on the built-in robot.
   const Table scenes = ReadCsv(out + "/scenes.csv");
@@ -110,7 +137,7 @@ TEST(Bench, QuickRunWritesSaneTables) {
   EXPECT_EQ(Percent(icp->at("said OK")), 0.0);
   EXPECT_EQ(icp->at("wrong OK"), "0");
   EXPECT_GT(Percent(icp->at("success (ADD<=10mm)")), 0.0);
-  EXPECT_LT(std::stod(icp->at("ADD median mm")), 50.0);
+  EXPECT_LT(Cell(*icp, "ADD median mm"), 50.0);
   ASSERT_NE(Find(scenes, "method", "super4pcs", "scene", "near-table"), nullptr);
 
   // Every run is in runs.csv: sweep 2 methods x 8 sets x 2 runs, perturbations 2 x 2 x 17, scenes 2 x 4.

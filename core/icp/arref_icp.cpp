@@ -441,9 +441,34 @@ Result<std::vector<Candidate>> RefineBest(const std::vector<Candidate>& candidat
   for (const auto& c : Distinct(candidates, static_cast<std::size_t>(p.refine_top))) {
     ARREF_ASSIGN_OR_RETURN(const Candidate approached, Approach(approach, target, c, p, cancel));
     ARREF_ASSIGN_OR_RETURN(Candidate polished, Refine(fine, target, approached, p, kPolishLevels, cancel));
+    spdlog::debug("arref-icp: refined from yaw {:.1f} deg (score {:.3f}) to yaw {:.1f} deg at ({:.3f}, {:.3f}), score {:.3f}",
+                  YawOf(c.T_world_base) * 180 / std::numbers::pi, c.score, YawOf(polished.T_world_base) * 180 / std::numbers::pi,
+                  polished.T_world_base.translation().x(), polished.T_world_base.translation().y(), polished.score);
     refined.push_back(std::move(polished));
   }
   return Distinct(refined, 2);
+}
+
+// Every yaw at the place the search found best, where no settled candidate has it yet. The
+// status's margin compares the best pose with its best distinct rival (AssignStatus,
+// pipeline.cpp), and a rival that never reached the robot says nothing about it: from a seed far
+// from the base only one of the seed's yaws may reach the robot, at the wrong yaw of an arm that
+// is nearly a figure of revolution, and its lead over rivals scoring nothing passed for
+// certainty (docs/robustness.md, "Every yaw at the place found").
+Result<std::vector<Candidate>> YawsAtBest(const PointCloud& coarse, const TargetCloud& target,
+                                          const std::vector<Candidate>& candidates, const SearchLengths& lengths,
+                                          const ArrefIcpParams& p, const CancelToken* cancel) {
+  const Iso3& best = Distinct(candidates, 1).front().T_world_base;
+  const Vec3 at = best.translation();
+  std::vector<Iso3> starts;
+  for (int k = 1; k < p.yaw_hypotheses; ++k) {
+    const Iso3 start = MakeYawPose(at.x(), at.y(), at.z(), YawOf(best) + 2 * std::numbers::pi * k / p.yaw_hypotheses);
+    if (std::none_of(candidates.begin(), candidates.end(),
+                     [&](const Candidate& c) { return c.settled && SamePose(c.T_world_base, start); }))
+      starts.push_back(start);
+  }
+  if (starts.empty()) return std::vector<Candidate>{};
+  return CoarseSearch(coarse, target, starts, starts.size(), lengths, p, cancel);
 }
 
 // Every yaw round the seed on every base height, refined; when the seed's neighbourhood does not
@@ -462,6 +487,8 @@ Result<std::vector<Candidate>> SearchPoses(const ArrefIcpInput& in,
   ARREF_ASSIGN_OR_RETURN(std::vector<Candidate> candidates,
                          CoarseSearch(coarse, target, Hypotheses(in.T_world_seed, heights, p, lengths.grid_step_m, 0),
                                       static_cast<std::size_t>(p.settle_top), lengths, p, in.cancel));
+  ARREF_ASSIGN_OR_RETURN(const auto rivals, YawsAtBest(coarse, target, candidates, lengths, p, in.cancel));
+  candidates.insert(candidates.end(), rivals.begin(), rivals.end());
   const double best_coarse = Distinct(candidates, 1).front().score;
   std::vector<Candidate> refined;
   if (best_coarse >= p.expand_below_score || p.position_steps == 0) {
@@ -483,6 +510,8 @@ Result<std::vector<Candidate>> SearchPoses(const ArrefIcpInput& in,
   const std::vector<Iso3> wide = Hypotheses(in.T_world_seed, heights, p, lengths.grid_step_m, p.position_steps);
   ARREF_ASSIGN_OR_RETURN(const auto more, CoarseSearch(coarse, target, wide, wide.size(), lengths, p, in.cancel));
   candidates.insert(candidates.end(), more.begin(), more.end());
+  ARREF_ASSIGN_OR_RETURN(const auto wide_rivals, YawsAtBest(coarse, target, candidates, lengths, p, in.cancel));
+  candidates.insert(candidates.end(), wide_rivals.begin(), wide_rivals.end());
   out->stages.push_back("position-search");
   out->step_ms.emplace_back("pose-search", laps->Lap());
   out->hypotheses = static_cast<int>(candidates.size());

@@ -431,9 +431,8 @@ Result<std::array<std::shared_ptr<const PointCloud>, 3>> FittedModel(const Arref
   return out;
 }
 
-// Every yaw round the seed, and when none fits well a grid of positions too, each given a
-// coarse 4-DoF alignment and scored.
-// The refined poses of the best distinct candidates, best first.
+// The refined poses of the best distinct candidates (refine_top), best first: the best and its
+// rival for the margin. While they all end at one pose, up to rival_refines more are refined.
 Result<std::vector<Candidate>> RefineBest(const std::vector<Candidate>& candidates, const PointCloud& approach,
                                           const PointCloud& fine, const TargetCloud& target, const ArrefIcpParams& p,
                                           const CancelToken* cancel) {

@@ -188,51 +188,27 @@ TEST(Bench, RobustnessQuickHasRowsPerRobotAndMesher) {
 }
 
 // A slender 7-axis arm that is nearly a figure of revolution (tests/robots/column7.urdf, invented
-// for this test), on Open3D's mesh: two of its robustness cells that said OK fits turned the
-// wrong way (docs/robustness.md, "Every yaw at the place found").
-Table RunColumnCells(const std::string& name, const std::string& options) {
-  const std::string out = ::testing::TempDir() + "/arref_bench_" + name;
+// for this test), on Open3D's mesh, from seeds anywhere in the 1 m cube round its base. From the
+// third seed of this cell only one of the seed's yaws reached the robot, turned 86 degrees, and
+// its lead over rivals that never reached it was said OK, 119 mm off. The search now tries every
+// yaw where it found the robot (arref_icp.cpp, YawsAtBest), and every seed ends within 20 mm.
+TEST(Bench, ANearlyRoundArmFromCubeSeedsIsNotOkTurnedTheWrongWay) {
+  const std::string out = ::testing::TempDir() + "/arref_bench_column";
   std::filesystem::remove_all(out);
   const auto r = testing::RunCommand(std::string(ARREF_BINARY_DIR) + "/clients/cli/arref bench --only robustness --robots " +
-                                     testing::SourceDir() + "/tests/robots/column7.urdf --meshers open3d " + options +
-                                     " --out " + out);
-  if (r.exit_code != 0 && r.err.find("Open3D missing") != std::string::npos) return {};
-  EXPECT_EQ(r.exit_code, 0) << r.err;
-  return ReadCsv(out + "/runs.csv");
-}
-
-void ExpectNoWrongOk(const Table& runs) {
-  for (const auto& run : runs) {
-    if (run.at("status") != "OK") continue;
-    EXPECT_LE(Cell(run, "add_mm"), 20.0) << run.at("scene") << " #" << run.at("cell") << " seed " << run.at("seed")
-                                         << " said OK turned " << run.at("rotation_deg") << " degrees";
-  }
-}
-
-// From the third cube seed of this cell only one of the seed's yaws reached the robot, turned 86
-// degrees, and its lead over rivals that never reached it was said OK, 119 mm off. The search now
-// tries every yaw where it found the robot (arref_icp.cpp, YawsAtBest): every seed within 20 mm.
-TEST(Bench, ANearlyRoundArmFoundFromAfarIsTriedAtEveryYaw) {
-  const Table runs = RunColumnCells("column_cube", "--seed-families cube --rng-seed 1 --robust-cells 1 --robust-seeds 3");
-  if (runs.empty()) GTEST_SKIP() << "arref was built without Open3D (libopen3d-dev): the cell is Open3D's mesh";
+                                     testing::SourceDir() + "/tests/robots/column7.urdf --meshers open3d --seed-families cube "
+                                     "--rng-seed 1 --robust-cells 1 --robust-seeds 3 --out " + out);
+  if (r.exit_code != 0 && r.err.find("Open3D missing") != std::string::npos)
+    GTEST_SKIP() << "arref was built without Open3D (libopen3d-dev): the cell is Open3D's mesh";
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const Table runs = ReadCsv(out + "/runs.csv");
   ASSERT_EQ(runs.size(), 3u);
   for (const auto& run : runs) {
     RecordProperty("add_mm_seed_" + run.at("seed"), run.at("add_mm"));
+    // Found from every seed; the yaw of such an arm is loosely held, so some say LOW_CONFIDENCE.
     EXPECT_LE(Cell(run, "add_mm"), 20.0) << "seed " << run.at("seed") << " (" << run.at("status") << ") turned "
                                          << run.at("rotation_deg") << " degrees";
   }
-  ExpectNoWrongOk(runs);
-}
-
-// Both refined candidates often end at one pose on such an arm, turned 7-35 degrees along a yaw
-// valley the mesh barely shapes; with no rival the margin was the fit's whole score. More
-// candidates are refined until one ends elsewhere (RefineBest, rival_refines): two cells of this
-// draw said OK fits 25 and 56 mm off; now none.
-TEST(Bench, ANearlyRoundArmTurnedAlongAFlatValleyHasARival) {
-  const Table runs = RunColumnCells("column_user", "--seed-families user --rng-seed 2 --robust-cells 6 --robust-seeds 3");
-  if (runs.empty()) GTEST_SKIP() << "arref was built without Open3D (libopen3d-dev): the cells are Open3D's meshes";
-  ASSERT_EQ(runs.size(), 18u);
-  ExpectNoWrongOk(runs);
 }
 
 // `--robust-pedestals`: half the cells stand the arm on a 0.2-0.7 m pedestal (and one that reaches

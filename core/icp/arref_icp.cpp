@@ -432,16 +432,12 @@ Result<std::array<std::shared_ptr<const PointCloud>, 3>> FittedModel(const Arref
 }
 
 // The refined poses of the best distinct candidates (refine_top), best first: the best and its
-// rival for the margin. While they all end at one pose, up to rival_refines more are refined.
+// rival for the margin, when they do not end at one pose.
 Result<std::vector<Candidate>> RefineBest(const std::vector<Candidate>& candidates, const PointCloud& approach,
                                           const PointCloud& fine, const TargetCloud& target, const ArrefIcpParams& p,
                                           const CancelToken* cancel) {
   std::vector<Candidate> refined;
-  const auto starts = Distinct(candidates, static_cast<std::size_t>(p.refine_top + p.rival_refines));
-  for (std::size_t i = 0; i < starts.size(); ++i) {
-    // Past refine_top, only while every refined pose is the same one: the margin needs a rival.
-    if (i >= static_cast<std::size_t>(p.refine_top) && Distinct(refined, 2).size() > 1) break;
-    const Candidate& c = starts[i];
+  for (const auto& c : Distinct(candidates, static_cast<std::size_t>(p.refine_top))) {
     ARREF_ASSIGN_OR_RETURN(const Candidate approached, Approach(approach, target, c, p, cancel));
     ARREF_ASSIGN_OR_RETURN(Candidate polished, Refine(fine, target, approached, p, kPolishLevels, cancel));
     spdlog::debug("arref-icp: refined from yaw {:.1f} deg (score {:.3f}) to yaw {:.1f} deg at ({:.3f}, {:.3f}), score {:.3f}",
@@ -529,10 +525,8 @@ Result<RegistrationOutput> RegisterArrefIcp(const ArrefIcpInput& in) {
   if (!in.model_base.has_normals() || !in.scene_world.has_normals() ||
       (in.model_expected && !in.model_expected->has_normals()))
     return Status::FailedPrecondition("arref-icp needs normals on model and scene points");
-  if (p.yaw_hypotheses < 1 || p.height_offsets_m.empty() || p.refine_top < 1 || p.settle_top < 1 || p.position_steps < 0 ||
-      p.rival_refines < 0)
-    return Status::InvalidArgument(
-        "arref-icp: yaw hypotheses, heights, settle_top and refine_top must be >= 1, position_steps and rival_refines >= 0");
+  if (p.yaw_hypotheses < 1 || p.height_offsets_m.empty() || p.refine_top < 1 || p.settle_top < 1 || p.position_steps < 0)
+    return Status::InvalidArgument("arref-icp: yaw hypotheses, heights, settle_top and refine_top must be >= 1");
   if (!(p.placement_error_m > 0) || !(p.position_step_m >= 0) || !std::isfinite(p.placement_error_m + p.position_step_m))
     return Status::InvalidArgument("arref-icp: placement_error_m must be > 0 m and position_step_m >= 0 m");
   if (Cancelled(in.cancel)) return CancelledIn("model preparation");

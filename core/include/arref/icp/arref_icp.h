@@ -53,9 +53,6 @@ struct ArrefIcpParams {
   // from the refit's eyes (tracking_error.h). position_m 0: equal weights.
   TrackingError tracking_error;
   int refine_top = 2;
-  // When the refine_top candidates all refine to one pose, up to this many more distinct ones
-  // are refined until one ends elsewhere, so that the margin has a rival (arref_icp.cpp, RefineBest).
-  int rival_refines = 2;
   int settle_top = 8;  // the yaw search's starts settled (the best once captured); the wide search settles all
   bool final_six_dof = false;      // a last 6-DoF step would absorb tilt of the headset world (robots stand upright)
   // Fit the robot as the headset would mesh it (model_reconstruction.h) rather than its exact

@@ -53,13 +53,11 @@ const std::map<std::string, std::string>* Find(const Table& t, const std::string
 // naming the cell, instead of throwing a bare std::invalid_argument("stod").
 double Number(const std::string& s, const std::string& what) {
   try {
-    std::size_t used = 0;
-    const double v = std::stod(s, &used);
-    if (used > 0) return v;
+    return std::stod(s);
   } catch (const std::exception&) {
+    ADD_FAILURE() << what << ": '" << s << "' is not a number";
+    return std::nan("");
   }
-  ADD_FAILURE() << what << ": '" << s << "' is not a number";
-  return std::nan("");
 }
 
 double Cell(const std::map<std::string, std::string>& row, const std::string& key) {
@@ -225,7 +223,7 @@ TEST(Bench, RobustnessWithPedestalsStandsArmsOnThem) {
   const std::string log = r.out + r.err;
   int on_floor = 0, on_pedestal = 0;
   for (std::size_t at = log.find(", pedestal "); at != std::string::npos; at = log.find(", pedestal ", at + 1)) {
-    const double height = std::stod(log.substr(at + 11));
+    const double height = Number(log.substr(at + 11), "the pedestal's height in the log");
     EXPECT_GE(height, 0.0);
     EXPECT_LE(height, 1.0) << "0.2-0.7 m drawn, or what clears an arm's reach below its base";
     (height > 0 ? on_pedestal : on_floor) += 1;

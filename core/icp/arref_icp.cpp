@@ -457,7 +457,7 @@ Result<std::vector<Candidate>> RefineBest(const std::vector<Candidate>& candidat
 Result<std::vector<Candidate>> YawsAtBest(const PointCloud& coarse, const TargetCloud& target,
                                           const std::vector<Candidate>& candidates, const SearchLengths& lengths,
                                           const ArrefIcpParams& p, const CancelToken* cancel) {
-  const Iso3& best = Distinct(candidates, 1).front().T_world_base;
+  const Iso3 best = Distinct(candidates, 1).front().T_world_base;  // a copy: Distinct returns a temporary
   const Vec3 at = best.translation();
   std::vector<Iso3> starts;
   for (int k = 1; k < p.yaw_hypotheses; ++k) {

@@ -13,6 +13,7 @@
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <iterator>
 #include <limits>
 #include <memory>
 #include <numbers>
@@ -458,14 +459,13 @@ Result<std::vector<Candidate>> YawsAtBest(const PointCloud& coarse, const Target
                                           const std::vector<Candidate>& candidates, const SearchLengths& lengths,
                                           const ArrefIcpParams& p, const CancelToken* cancel) {
   const Iso3 best = Distinct(candidates, 1).front().T_world_base;  // a copy: Distinct returns a temporary
-  const Vec3 at = best.translation();
+  // The yaw search's hypotheses round the best pose, on its height, without the best's own yaw.
+  const std::vector<Iso3> yaws = Hypotheses(best, {best.translation().z()}, p, 0.0, 0);
   std::vector<Iso3> starts;
-  for (int k = 1; k < p.yaw_hypotheses; ++k) {
-    const Iso3 start = MakeYawPose(at.x(), at.y(), at.z(), YawOf(best) + 2 * std::numbers::pi * k / p.yaw_hypotheses);
-    if (std::none_of(candidates.begin(), candidates.end(),
-                     [&](const Candidate& c) { return c.settled && SamePose(c.T_world_base, start); }))
-      starts.push_back(start);
-  }
+  std::copy_if(yaws.begin() + 1, yaws.end(), std::back_inserter(starts), [&](const Iso3& start) {
+    return std::none_of(candidates.begin(), candidates.end(),
+                        [&](const Candidate& c) { return c.settled && SamePose(c.T_world_base, start); });
+  });
   if (starts.empty()) return std::vector<Candidate>{};
   return CoarseSearch(coarse, target, starts, starts.size(), lengths, p, cancel);
 }

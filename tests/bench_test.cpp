@@ -66,6 +66,11 @@ double Cell(const std::map<std::string, std::string>& row, const std::string& ke
 
 double Percent(const std::string& s) { return Number(s.substr(0, s.find(' ')), s); }
 
+// The bench refused an Open3D mesher because arref was built without libopen3d-dev.
+bool BuiltWithoutOpen3d(const testing::CommandResult& r) {
+  return r.exit_code != 0 && r.err.find("Open3D missing") != std::string::npos;
+}
+
 TEST(Bench, QuickRunWritesSaneTables) {
   const testing::ScopedTempDir tmp;
   const std::string out = tmp.path() + "/bench";
@@ -150,7 +155,7 @@ TEST(Bench, RobustnessQuickHasRowsPerRobotAndMesher) {
   std::filesystem::remove_all(out);
   const auto r = testing::RunCommand("cd '" + testing::SourceDir() + "' && " + std::string(ARREF_BINARY_DIR) +
                                      "/clients/cli/arref bench --only robustness --quick --out " + out);
-  if (r.exit_code != 0 && r.err.find("Open3D missing") != std::string::npos)
+  if (BuiltWithoutOpen3d(r))
     GTEST_SKIP() << "arref was built without Open3D (libopen3d-dev): no open3d mesher to compare";
   ASSERT_EQ(r.exit_code, 0) << r.err;
   ASSERT_TRUE(std::filesystem::exists(out + "/robustness.md"));
@@ -196,7 +201,7 @@ TEST(Bench, ANearlyRoundArmFromCubeSeedsIsNotOkTurnedTheWrongWay) {
   const auto r = testing::RunCommand(std::string(ARREF_BINARY_DIR) + "/clients/cli/arref bench --only robustness --robots " +
                                      testing::SourceDir() + "/tests/robots/column7.urdf --meshers open3d --seed-families cube "
                                      "--rng-seed 1 --robust-cells 1 --robust-seeds 3 --out " + out);
-  if (r.exit_code != 0 && r.err.find("Open3D missing") != std::string::npos)
+  if (BuiltWithoutOpen3d(r))
     GTEST_SKIP() << "arref was built without Open3D (libopen3d-dev): the cell is Open3D's mesh";
   ASSERT_EQ(r.exit_code, 0) << r.err;
   const Table runs = ReadCsv(out + "/runs.csv");

@@ -4,11 +4,24 @@
 #include <limits>
 #include <random>
 
+#include "arref/base/stats.h"
 #include "arref/scene/metrics.h"
 #include "arref/scene/nearest_neighbor.h"
 
 namespace arref {
 namespace {
+
+// The tables' quantiles interpolate between order statistics (definition 7), whatever the order.
+TEST(Stats, QuantilesInterpolateBetweenOrderStatistics) {
+  const std::vector<double> v = {40, 10, 30, 20};
+  EXPECT_DOUBLE_EQ(Median(v), 25.0);  // between the two middle values, not either of them
+  EXPECT_DOUBLE_EQ(Quantile(v, 0.0), 10.0);
+  EXPECT_DOUBLE_EQ(Quantile(v, 1.0), 40.0);
+  EXPECT_DOUBLE_EQ(Quantile(v, 0.95), 38.5);  // position 2.85: 30 + 0.85 * 10
+  EXPECT_DOUBLE_EQ(Median({7}), 7.0);
+  EXPECT_DOUBLE_EQ(Median({3, 1, 2}), 2.0);
+  EXPECT_TRUE(std::isnan(Median({})));
+}
 
 TEST(Metrics, AddOfAPureTranslationIsItsLength) {
   const std::vector<Vec3f> pts = {{0, 0, 0}, {1, 0, 0}, {0, 1, 0}};

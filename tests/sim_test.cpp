@@ -24,7 +24,6 @@
 namespace arref::sim {
 namespace {
 
-constexpr double kDeg = std::numbers::pi / 180.0;
 
 using testing::BuiltinRobot;
 
@@ -226,7 +225,7 @@ TEST(RayCaster, BuiltForOneUseRendersTheSameImages) {
   const PinholeCamera camera = PinholeCamera::FromFov(160, 120, 70);
   std::size_t hits = 0;
   for (int view = 0; view < 6; ++view) {
-    const double azimuth = view * 60 * kDeg;
+    const double azimuth = view * 60 * kDegree;
     const Iso3 T_world_camera = LookAt(Vec3(2 * std::cos(azimuth), 2 * std::sin(azimuth), 1.6), Vec3(0, 0, 0.6));
     std::vector<float> incidence_a, incidence_b;
     const RangeImage a = tracing->Render(camera, T_world_camera, 10, &incidence_a);
@@ -466,7 +465,7 @@ TEST(CellSimulator, SeedsLookLikeAUsersPlacement) {
   const double n = seeds.size();
   // Mean of a Rayleigh distribution: sigma * sqrt(pi / 2) = 0.088 m for 0.07 m per axis.
   EXPECT_NEAR(horizontal / n, 0.07 * std::sqrt(std::numbers::pi / 2), 0.004);
-  EXPECT_NEAR(std::sqrt(yaw_sq / n) / kDeg, 15.0, 0.5);
+  EXPECT_NEAR(std::sqrt(yaw_sq / n) / kDegree, 15.0, 0.5);
   EXPECT_NEAR(vertical / n, 0.15, 0.01);
   EXPECT_GE(vertical_min, 0.0);
   EXPECT_LE(vertical_max, 0.3);
@@ -708,7 +707,7 @@ TEST(CellSimulator, SeedFamiliesSpanTheirRanges) {
       const Vec3 d = s.translation() - T_world_base.translation();
       below += d.z() < 0;
       const Eigen::Matrix3d R = T_world_base.linear().transpose() * s.linear();
-      max_yaw = std::max(max_yaw, std::abs(std::atan2(R(1, 0), R(0, 0))) / kDeg);
+      max_yaw = std::max(max_yaw, std::abs(std::atan2(R(1, 0), R(0, 0))) / kDegree);
       EXPECT_NEAR(s.linear()(2, 2), 1.0, 1e-9) << "gravity aligned";
       if (family == SeedFamily::kCube) {
         EXPECT_LE(d.cwiseAbs().maxCoeff(), 0.5);

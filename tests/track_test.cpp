@@ -25,7 +25,6 @@
 namespace arref {
 namespace {
 
-constexpr double kDeg = std::numbers::pi / 180.0;
 
 std::shared_ptr<const RobotModel> Builtin() {
   auto robot = RobotModel::Load(testing::BuiltinRobotUrdf());
@@ -191,7 +190,7 @@ StreamOutcome RunStream(std::shared_ptr<const RobotModel> robot, sim::TrackSimOp
   stream.declared_pose_latency_s = declared_pose_latency_s;
   if (!as_bench) {
     stream.round_trip_every = 1;
-    stream.first_guess = simulator->T_world_base_initial() * MakeYawPose(0.05, -0.04, 0.02, 4 * kDeg);
+    stream.first_guess = simulator->T_world_base_initial() * MakeYawPose(0.05, -0.04, 0.02, 4 * kDegree);
   }
   const double jump_time = simulator->jump_time_s();
   sim::JumpRecovery recovery(jump_time);

@@ -12,6 +12,7 @@
 #include <thread>
 #include <nlohmann/json.hpp>
 
+#include "arref/base/stats.h"
 #include "headset_client.h"
 #include "track_client.h"
 #include "client_io.h"
@@ -234,12 +235,6 @@ struct SoakHeadset {
   std::vector<std::string> failures;  // the first few failed good sessions' statuses
 };
 
-double Percentile(std::vector<double> v, double q) {
-  if (v.empty()) return 0;
-  std::sort(v.begin(), v.end());
-  return v[std::min(v.size() - 1, static_cast<std::size_t>(std::ceil(q * static_cast<double>(v.size()))) - (q > 0))];
-}
-
 // Headset i loops until the deadline: a good one maps, registers three times and leaves; a bad
 // one (every bad_every-th) misbehaves, each time in the next way.
 void SoakLoop(const HeadsetScene& scene, HeadsetOptions options, int i, int bad_every, Clock::time_point deadline,
@@ -285,8 +280,8 @@ int RunSoak(const HeadsetScene& scene, const Args& a) {
     failed += h.failed_sessions;
     all.insert(all.end(), h.latency_ms.begin(), h.latency_ms.end());
     if (!h.bad && !h.latency_ms.empty()) {
-      per_session_median.push_back(Percentile(h.latency_ms, 0.5));
-      per_session_p95.push_back(Percentile(h.latency_ms, 0.95));
+      per_session_median.push_back(Quantile(h.latency_ms, 0.5));
+      per_session_p95.push_back(Quantile(h.latency_ms, 0.95));
     }
     for (const auto& [code, n] : h.errors) errors[code] += n;
   }
@@ -294,10 +289,10 @@ int RunSoak(const HeadsetScene& scene, const Args& a) {
                            "{:.2f} results/s\n", a.clients, good, bad, wall_s, sessions, all.size(),
                            static_cast<double>(all.size()) / wall_s);
   std::cout << fmt::format("latency (request sent -> result): median {:.0f} ms, p95 {:.0f} ms, max {:.0f} ms\n",
-                           Percentile(all, 0.5), Percentile(all, 0.95), Percentile(all, 1.0));
+                           Quantile(all, 0.5), Quantile(all, 0.95), Quantile(all, 1.0));
   std::cout << fmt::format("per good headset: median latency {:.0f} .. {:.0f} ms (min .. max over headsets), p95 "
-                           "{:.0f} .. {:.0f} ms\n", Percentile(per_session_median, 0), Percentile(per_session_median, 1),
-                           Percentile(per_session_p95, 0), Percentile(per_session_p95, 1));
+                           "{:.0f} .. {:.0f} ms\n", Quantile(per_session_median, 0), Quantile(per_session_median, 1),
+                           Quantile(per_session_p95, 0), Quantile(per_session_p95, 1));
   std::cout << fmt::format("good sessions failed: {}\n", failed);
   std::size_t shown = 0;  // the first few are enough; the counts by code follow
   for (const auto& h : headsets)

@@ -177,7 +177,7 @@ std::vector<ExpectedSurfaceMaker::View> ExpectedSurfaceMaker::ViewsInContext(con
 // The fused triangles that belong to the robot: nearer to its surface than to the floor and
 // to the other objects.
 TriangleMesh ExpectedSurfaceMaker::RobotPart(const TriangleMesh& fused, const PointIndex* context) const {
-  const float floor_z = std::min(0.0f, parts_->box.min.z());
+  const float floor_z = FloorHeight(parts_->box);
   return KeepTriangles(fused, [&](const Triangle& t) {
     const Vec3f c = Centroid(fused, t);
     const float floor_sq = (c.z() - floor_z) * (c.z() - floor_z);

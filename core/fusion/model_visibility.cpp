@@ -8,11 +8,10 @@
 namespace arref {
 
 TriangleMesh WithFloor(const TriangleMesh& robot_base) {
-  const Aabb box = BoundsOf(robot_base.vertices);
   TriangleMesh scene = robot_base;
   const float r = 10.0f;
   const auto n = static_cast<std::uint32_t>(scene.vertices.size());
-  const float z = std::min(0.0f, box.min.z());
+  const float z = FloorHeight(BoundsOf(robot_base.vertices));
   scene.vertices.insert(scene.vertices.end(), {{-r, -r, z}, {r, -r, z}, {r, r, z}, {-r, r, z}});
   scene.triangles.push_back({n, n + 1, n + 2});
   scene.triangles.push_back({n, n + 2, n + 3});

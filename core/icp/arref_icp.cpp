@@ -344,10 +344,9 @@ std::vector<Vec3> EyesOfPath(std::span<const Vec3> path_world, const Iso3& T_wor
 }
 
 // Where the headset saw the robot from (base frame): the app's head path when it holds enough
-// eyes, else the eyes of the walk whose surface was fitted.
-std::vector<Vec3> SeenFrom(const ArrefIcpInput& in, const Iso3& T_world_base, int walk) {
-  std::vector<Vec3> eyes = EyesOfPath(in.head_path_world, T_world_base);
-  return eyes.empty() ? RobotSide::RefitEyes(walk) : eyes;
+// eyes (EyesOfPath's), else the eyes of the walk whose surface was fitted.
+std::vector<Vec3> SeenFrom(std::vector<Vec3> path_eyes, int walk) {
+  return path_eyes.empty() ? RobotSide::RefitEyes(walk) : path_eyes;
 }
 
 // Objects near the robot (a table 0.2 m from its base) hide parts of it from the walker and
@@ -379,7 +378,7 @@ Result<Candidate> RefineInContext(const ArrefIcpInput& in, int walk, const Targe
   // The surface's points weighed by how far the headset's tracking error moves them, as seen
   // from the eyes it was fused from (tracking_error.h).
   const std::vector<float> weights =
-      TrackingErrorWeights(**fitted, SeenFrom(in, best.T_world_base, walk), in.params.tracking_error);
+      TrackingErrorWeights(**fitted, SeenFrom(eyes, walk), in.params.tracking_error);
   return Polish(**fitted, dense ? *dense : target, best, in.params, in.cancel, weights);
 }
 
@@ -562,7 +561,7 @@ Result<RegistrationOutput> RegisterArrefIcp(const ArrefIcpInput& in) {
   if (out.has_other_surface)
     out.T_world_base_other_surface.translation().z() += out.T_world_base.translation().z() - refined.front().T_world_base.translation().z();
   if (in.robot) {
-    out.eyes_world = SeenFrom(in, out.T_world_base, walk);
+    out.eyes_world = SeenFrom(EyesOfPath(in.head_path_world, out.T_world_base), walk);
     for (Vec3& eye : out.eyes_world) eye = out.T_world_base * eye;
   }
   out.score = refined.front().score;

@@ -28,7 +28,6 @@ namespace {
 using detail::kNoiseSigmasInBand;
 using detail::kSecondsPerView;
 
-constexpr double kDeg = std::numbers::pi / 180.0;
 // Surface area per cubic metre of a mapped cell (floor, walls, robot, furniture in the 2 m
 // sphere). Surface nets emits ~2 triangles per voxel face of surface, so a density of
 // triangles_per_m3 needs voxels of sqrt(2 * kSurfacePerVolume / triangles_per_m3).
@@ -155,7 +154,7 @@ struct View {
 namespace detail {
 // Small head-tracking error, expressed in the camera frame.
 Iso3 RandomJitter(const ScanOptions& scan, std::mt19937_64& rng) {
-  std::normal_distribution<double> rot(0.0, scan.pose_jitter_deg * kDeg), pos(0.0, scan.pose_jitter_m);
+  std::normal_distribution<double> rot(0.0, scan.pose_jitter_deg * kDegree), pos(0.0, scan.pose_jitter_m);
   const Vec3 w(rot(rng), rot(rng), rot(rng));
   Iso3 T = Iso3::Identity();
   if (w.norm() > 0) T.linear() = Eigen::AngleAxisd(w.norm(), w.normalized()).toRotationMatrix();
@@ -178,7 +177,7 @@ double SeenTolerance(const ScanOptions& scan) { return 0.02 + 3 * scan.depth_noi
 std::vector<View> WalkingPath(const ScanOptions& scan, const Iso3& T_cell_base, std::mt19937_64& rng) {
   std::uniform_real_distribution<double> aim_height(0.5, 0.8);
   std::vector<View> views;
-  const double arc = scan.path_arc_deg * kDeg;
+  const double arc = scan.path_arc_deg * kDegree;
   const double spacing = scan.views == 1 ? 0.0 : arc / (scan.views - 1);
   for (int i = 0; i < scan.views; ++i) {
     double theta = scan.views == 1 ? 0.0 : -arc / 2 + arc * i / (scan.views - 1);
@@ -189,7 +188,7 @@ std::vector<View> WalkingPath(const ScanOptions& scan, const Iso3& T_cell_base, 
       radius = std::max(0.5, radius + wander(rng));
       height += wander(rng) / 3;
     }
-    theta += scan.path_center_deg * kDeg;
+    theta += scan.path_center_deg * kDegree;
     const Vec3 eye(radius * std::cos(theta), radius * std::sin(theta), height);
     const Vec3 target = T_cell_base * Vec3(0, 0, aim_height(rng));
     const Iso3 believed = LookAt(eye, target);
@@ -388,7 +387,7 @@ Iso3 SurfaceError(const DeviceVariation& device, const Vec3& centre, std::mt1993
   std::normal_distribution<double> g(0.0, 1.0);
   std::uniform_real_distribution<double> unit(0.0, 1.0);
   const Vec3 axis = Vec3(g(rng), g(rng), g(rng)).normalized(), dir = Vec3(g(rng), g(rng), g(rng)).normalized();
-  const double angle = device.surface_error_max_deg * kDeg * unit(rng), shift = device.surface_error_max_m * unit(rng);
+  const double angle = device.surface_error_max_deg * kDegree * unit(rng), shift = device.surface_error_max_m * unit(rng);
   return Eigen::Translation3d(centre + shift * dir) * Eigen::AngleAxisd(angle, axis) * Eigen::Translation3d(-centre);
 }
 
@@ -666,14 +665,14 @@ Result<SimulatedCell> SimulateCell(const RobotModel& robot, const SimOptions& re
 
 std::vector<Iso3> DrawSeeds(const Iso3& T_world_base, const SeedNoise& noise, int count, std::mt19937_64& rng) {
   if (noise.family == SeedFamily::kTruth) return std::vector<Iso3>(static_cast<std::size_t>(std::max(count, 0)), T_world_base);
-  std::normal_distribution<double> horizontal(0.0, noise.horizontal_sigma_m), yaw_error(0.0, noise.yaw_sigma_deg * kDeg);
+  std::normal_distribution<double> horizontal(0.0, noise.horizontal_sigma_m), yaw_error(0.0, noise.yaw_sigma_deg * kDegree);
   std::uniform_real_distribution<double> vertical(0.0, noise.vertical_max_m);
   const Vec3 base = T_world_base.translation();
   const double yaw = YawOf(T_world_base);
   std::vector<Iso3> seeds;
   std::uniform_real_distribution<double> unit(0.0, 1.0);
   if (noise.family != SeedFamily::kDefault) {
-    std::normal_distribution<double> user_yaw(0.0, 15.0 * kDeg);
+    std::normal_distribution<double> user_yaw(0.0, 15.0 * kDegree);
     for (int i = 0; i < count; ++i) {
       Vec3 d;
       if (noise.family == SeedFamily::kCube) {

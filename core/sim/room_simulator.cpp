@@ -191,10 +191,7 @@ Result<bool> PlaceArm(Layout& l, const ArmPlan& plan, RoomArm* arm, TriangleMesh
     TriangleMesh headed;
     headed.Append(posed, MakeYawPose(0, 0, 0, yaw));
     const Aabb reach = BoundsOf(headed.vertices);
-    // The footprint: what lies within 0.15 m of the lowest point (the base casting).
-    Aabb foot;
-    for (const Vec3f& v : headed.vertices)
-      if (v.z() <= reach.min.z() + 0.15f) foot.Extend(v);
+    const Aabb foot = FootprintOf(headed);
     const double hx = l.size.x() / 2, hy = l.size.y() / 2;
     Vec3 p(U(-hx, hx)(rng), U(-hy, hy)(rng), arm->pedestal_m);
     if (arm->placement == "wall") {  // its base 0.1-0.6 m from a wall

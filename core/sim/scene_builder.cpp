@@ -31,17 +31,6 @@ TriangleMesh MakeFloor(double size) {
   return m;
 }
 
-// Footprint of a posed robot mesh (base frame): x-y extent of what lies near its lowest point.
-Aabb FootprintOf(const TriangleMesh& posed) {
-  float min_z = std::numeric_limits<float>::max();
-  for (const auto& v : posed.vertices) min_z = std::min(min_z, v.z());
-  Aabb box;
-  for (const auto& v : posed.vertices)
-    if (v.z() <= min_z + kFootprintHeight) box.Extend(v);
-  box.max.z() = min_z + static_cast<float>(kFootprintHeight);
-  return box;
-}
-
 Aabb Translated(const Aabb& box, const Vec3& t) {
   Aabb out = box;
   out.min += t.cast<float>();
@@ -220,6 +209,17 @@ void AddClutter(Layout& layout, int count, const Aabb* table) {
 }
 
 }  // namespace
+
+Aabb FootprintOf(const TriangleMesh& posed) {
+  float min_z = std::numeric_limits<float>::max();
+  for (const auto& v : posed.vertices) min_z = std::min(min_z, v.z());
+  Aabb box;
+  for (const auto& v : posed.vertices)
+    if (v.z() <= min_z + kFootprintHeight) box.Extend(v);
+  box.max.z() = min_z + static_cast<float>(kFootprintHeight);
+  return box;
+}
+
 
 TriangleMesh MakeBox(const Vec3& center, const Vec3& size, double yaw) {
   TriangleMesh m;

@@ -27,6 +27,10 @@ TriangleMesh MakeBox(const Vec3& center, const Vec3& size, double yaw = 0.0);
 // Bounds of a box built by MakeBox (axis-aligned, so a yawed box gets its enclosing box).
 Aabb BoxBounds(const Vec3& center, const Vec3& size, double yaw = 0.0);
 
+// Footprint of a posed robot mesh (its own frame): the extent of what lies within 0.15 m of its
+// lowest point (the base casting), up to that height.
+Aabb FootprintOf(const TriangleMesh& posed);
+
 // Horizontal gap between two boxes' footprints (0 when they overlap in x-y).
 double HorizontalGap(const Aabb& a, const Aabb& b);
 

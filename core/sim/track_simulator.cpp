@@ -15,7 +15,6 @@
 namespace arref::sim {
 namespace {
 
-constexpr double kDeg = std::numbers::pi / 180.0;
 constexpr double kAhatWrapM = 1.0;     // AHAT's phase wraps about here (HoloLens 2 AHAT depth wraps beyond about 1 m)
 constexpr double kAhatMaxRangeM = 3.0;
 
@@ -95,7 +94,7 @@ JointValues TrackSimulator::Impl::Joints(double t) const {
 }
 
 Iso3 TrackSimulator::Impl::T_cell_camera(double t) const {
-  const double radius = o.walk_radius_m, arc = o.walk_arc_deg * kDeg;
+  const double radius = o.walk_radius_m, arc = o.walk_arc_deg * kDegree;
   const double length = radius * arc, walked = std::fmod(o.walk_speed_m_s * t, 2 * length);
   const double along = walked < length ? walked : 2 * length - walked;  // back and forth
   const double azimuth = -0.5 * arc + along / radius;
@@ -105,7 +104,7 @@ Iso3 TrackSimulator::Impl::T_cell_camera(double t) const {
   const Vec3 target = base + Vec3(0, 0, 0.6);
   Iso3 T = LookAt(eye, target);
   // A head does not stare at one point: slow yaw and pitch about the gaze.
-  const double wander = o.head_wander_deg * kDeg;
+  const double wander = o.head_wander_deg * kDegree;
   T.rotate(Eigen::AngleAxisd(wander * std::sin(0.7 * t), Vec3::UnitY()));
   T.rotate(Eigen::AngleAxisd(0.6 * wander * std::sin(1.3 * t + 1.0), Vec3::UnitX()));
   return T;
@@ -179,7 +178,7 @@ Result<TrackSimulator> TrackSimulator::Create(std::shared_ptr<const RobotModel> 
   const Vec3 dir = Vec3(std::cos(heading), std::sin(heading), 0.3 * (2 * u01(jump_rng) - 1)).normalized();
   // About the wearer's head (where the headset re-anchors), not the world's origin.
   const Vec3 pivot = I.T_world0_cell * I.T_cell_camera(o.jump_at_s).translation();
-  I.jump = Eigen::Translation3d(pivot + jump_m * dir) * Eigen::AngleAxisd(jump_deg * kDeg, Vec3::UnitZ()) *
+  I.jump = Eigen::Translation3d(pivot + jump_m * dir) * Eigen::AngleAxisd(jump_deg * kDegree, Vec3::UnitZ()) *
            Eigen::Translation3d(-pivot);
   I.jump_time_s = o.jump_at_s;
   I.frames = static_cast<int>(std::floor(o.duration_s * o.fps));
@@ -201,7 +200,7 @@ Iso3 TrackSimulator::T_world_base_initial() const { return impl_->T_world0_cell 
 Iso3 TrackSimulator::T_world_base_guess() const {
   std::mt19937_64 rng(impl_->seed ^ 0x5EEDull);
   std::uniform_real_distribution<double> u(-1.0, 1.0);
-  return T_world_base_initial() * MakeYawPose(0.04 * u(rng), 0.04 * u(rng), 0.02 * u(rng), 4 * kDeg * u(rng));
+  return T_world_base_initial() * MakeYawPose(0.04 * u(rng), 0.04 * u(rng), 0.02 * u(rng), 4 * kDegree * u(rng));
 }
 
 Result<SimFrame> TrackSimulator::Next() {
@@ -212,7 +211,7 @@ Result<SimFrame> TrackSimulator::Next() {
   // Drift since the last frame, then the jump when its time has come.
   if (i > 0) {
     std::normal_distribution<double> n(0.0, 1.0);
-    const double sm = I.o.drift_m_per_sqrt_s * std::sqrt(dt), sr = I.o.drift_deg_per_sqrt_s * kDeg * std::sqrt(dt);
+    const double sm = I.o.drift_m_per_sqrt_s * std::sqrt(dt), sr = I.o.drift_deg_per_sqrt_s * kDegree * std::sqrt(dt);
     const Iso3 step = MakeYawPose(sm * n(I.drift_rng), sm * n(I.drift_rng), sm * n(I.drift_rng), sr * n(I.drift_rng));
     I.drift = step * I.drift;
     if (t >= I.jump_time_s && I.FrameTime(i - 1) < I.jump_time_s) I.drift = I.jump * I.drift;
@@ -259,7 +258,7 @@ Result<SimFrame> TrackSimulator::Next() {
     f.depth_mm[p] = static_cast<std::uint16_t>(std::clamp(std::round(1000 * z), 0.0, 65535.0));
   }
   const Iso3 T_world_cell = I.drift * I.T_world0_cell;
-  std::normal_distribution<double> jm(0.0, I.o.pose_jitter_m), jr(0.0, I.o.pose_jitter_deg * kDeg);
+  std::normal_distribution<double> jm(0.0, I.o.pose_jitter_m), jr(0.0, I.o.pose_jitter_deg * kDegree);
   const Vec3 axis_angle(jr(I.noise_rng), jr(I.noise_rng), jr(I.noise_rng));
   Iso3 jitter = Iso3::Identity();
   if (axis_angle.norm() > 0) jitter.linear() = Eigen::AngleAxisd(axis_angle.norm(), axis_angle.normalized()).toRotationMatrix();

@@ -46,7 +46,6 @@ Status CheckDepthFrame(const DepthFrame& f) {
 
 namespace {
 
-constexpr double kDeg = std::numbers::pi / 180.0;
 
 // One frame's registration from one starting pose.
 struct Measurement {
@@ -197,7 +196,7 @@ struct Tracker::Impl {
 bool Tracker::Impl::Jumped(const std::pair<double, Iso3>& before, const DepthFrame& f) const {
   const double dt = std::max(1e-3, f.time_s - before.first);
   const Iso3 delta = before.second.inverse() * f.T_world_camera;
-  const double angle_deg = Eigen::AngleAxisd(delta.linear()).angle() / kDeg;
+  const double angle_deg = Eigen::AngleAxisd(delta.linear()).angle() / kDegree;
   return delta.translation().norm() / dt > settings.camera_jump_m_per_s || angle_deg / dt > settings.camera_jump_deg_per_s;
 }
 
@@ -418,7 +417,7 @@ std::optional<Iso3> Tracker::Impl::GridSearch(const DepthFrame& f, const std::ve
       for (int j = -settings.search_steps; j <= settings.search_steps; ++j)
         for (int k = -settings.search_yaw_steps; k <= settings.search_yaw_steps; ++k) {
           const Iso3 T = StateToPose(g + Vec4(i * settings.search_step_m, j * settings.search_step_m, 0,
-                                              k * settings.search_yaw_step_deg * kDeg));
+                                              k * settings.search_yaw_step_deg * kDegree));
           auto fit = AlignCoarseToFine(source, target, T.inverse(), {0.15, 0.06}, icp);
           ++out->hypotheses;
           if (!fit.ok()) continue;

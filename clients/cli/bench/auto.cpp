@@ -16,6 +16,7 @@
 
 #include "arref/base/builtin.h"
 #include "arref/base/split_mix.h"
+#include "arref/base/stats.h"
 #include "arref/fusion/model_reconstruction.h"
 #include "arref/fusion/robot_side.h"
 #include "arref/pipeline/seedless.h"
@@ -118,12 +119,6 @@ std::vector<AutoRun> RunRoom(const BenchRobot& robot, const BenchRobot* other, s
   spdlog::info("bench: auto: {} {} room {} ({} arms{}, {} triangles) done", robot.label, label.mesher, index, arms,
                other ? ", with a " + other->label : "", label.triangles);
   return runs;
-}
-
-double Quantile(std::vector<double> v, double q) {
-  if (v.empty()) return std::nan("");
-  std::sort(v.begin(), v.end());
-  return v[static_cast<std::size_t>(std::lround(q * static_cast<double>(v.size() - 1)))];
 }
 
 std::string Pct(std::size_t n, std::size_t of) { return of == 0 ? "-" : fmt::format("{:.0f} % ({}/{})", 100.0 * n / of, n, of); }

@@ -11,6 +11,7 @@
 #include <numeric>
 
 #include "arref/base/split_mix.h"
+#include "arref/base/stats.h"
 #include "arref/fusion/model_reconstruction.h"
 #include "arref/robot/joint_motion.h"
 #include "arref/scene/metrics.h"
@@ -104,15 +105,6 @@ void VaryWalk(sim::ScanOptions* scan, std::mt19937_64& rng) {
   scan->eye_height_m = U(1.5, 1.8)(rng);
   scan->views = std::uniform_int_distribution<int>(16, 32)(rng);
   scan->path_wander_m = 0.1;
-}
-
-double Quantile(std::vector<double> v, double q) {
-  if (v.empty()) return std::nan("");
-  std::sort(v.begin(), v.end());
-  const double pos = q * static_cast<double>(v.size() - 1);
-  const auto lo = static_cast<std::size_t>(std::floor(pos));
-  const std::size_t hi = std::min(lo + 1, v.size() - 1);
-  return v[lo] + (pos - static_cast<double>(lo)) * (v[hi] - v[lo]);
 }
 
 }  // namespace

@@ -11,16 +11,11 @@
 #include <numbers>
 #include <set>
 
+#include "arref/base/stats.h"
 #include "bench.h"
 
 namespace arref::bench {
 namespace {
-
-double Median(std::vector<double> v) {
-  if (v.empty()) return std::nan("");
-  std::nth_element(v.begin(), v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2), v.end());
-  return v[v.size() / 2];
-}
 
 std::string Num(double v, int digits = 1) { return std::isfinite(v) ? fmt::format("{:.{}f}", v, digits) : "-"; }
 

@@ -13,6 +13,7 @@
 #include "arref/base/builtin.h"
 #include "arref/base/clock.h"
 #include "arref/base/split_mix.h"
+#include "arref/base/stats.h"
 #include "arref/scene/metrics.h"
 #include "arref/scene/sampling.h"
 #include "arref/sim/track_simulator.h"
@@ -31,13 +32,6 @@ double RssMb() {
   double pages = 0, resident = 0;
   statm >> pages >> resident;
   return resident * static_cast<double>(sysconf(_SC_PAGESIZE)) / (1024.0 * 1024.0);
-}
-
-double Quantile(std::vector<double> v, double q) {
-  if (v.empty()) return std::nan("");
-  const auto k = static_cast<std::ptrdiff_t>(std::min<double>(static_cast<double>(v.size()) - 1, q * static_cast<double>(v.size())));
-  std::nth_element(v.begin(), v.begin() + k, v.end());
-  return v[static_cast<std::size_t>(k)];
 }
 
 struct StreamStats {

@@ -6,19 +6,10 @@
 #include <cmath>
 #include <unordered_map>
 
+#include "arref/scene/sampling.h"
 #include "super4pcs.h"
 
 namespace arref::super4pcs {
-namespace {
-
-std::int64_t CellKey(const Vec3f& p, float cell) {
-  const auto x = static_cast<std::int64_t>(std::floor(p.x() / cell)) + (1 << 20);
-  const auto y = static_cast<std::int64_t>(std::floor(p.y() / cell)) + (1 << 20);
-  const auto z = static_cast<std::int64_t>(std::floor(p.z() / cell)) + (1 << 20);
-  return (z << 42) | (y << 21) | x;
-}
-
-}  // namespace
 
 std::vector<Congruent> FindCongruentSets(const std::vector<Vec3f>& Q, const Base& base, const std::vector<Pair>& pairs1,
                                          const std::vector<Pair>& pairs2, double delta, double angle_tolerance_rad,
@@ -28,7 +19,7 @@ std::vector<Congruent> FindCongruentSets(const std::vector<Vec3f>& Q, const Base
   // Eq. (1) of 4PCS: e1 = q_i + r1 (q_j - q_i) for every pair of the first set.
   std::vector<Vec3f> e1(pairs1.size());
   std::vector<Vec3f> dir1(pairs1.size());
-  std::unordered_map<std::int64_t, std::vector<std::uint32_t>> grid;
+  std::unordered_map<std::uint64_t, std::vector<std::uint32_t>> grid;  // by CellKey (sampling.h)
   grid.reserve(pairs1.size());
   for (std::uint32_t k = 0; k < pairs1.size(); ++k) {
     const Vec3f& qi = Q[pairs1[k][0]];

@@ -65,6 +65,8 @@ Iso3 MakePose(const Vec3& position, const Quat& orientation);
 Iso3 MakeYawPose(double x, double y, double z, double yaw);
 // Heading of T's x axis about +z, in radians in (-pi, pi]: the yaw MakeYawPose takes.
 inline double YawOf(const Iso3& T) { return std::atan2(T.linear()(1, 0), T.linear()(0, 0)); }
+// One degree in radians: angles written in degrees read 30 * kDegree.
+inline constexpr double kDegree = std::numbers::pi / 180.0;
 // An angle (radians) into (-pi, pi]: the difference of two yaws as a turn.
 inline double WrapAngle(double a) {
   a = std::remainder(a, 2 * std::numbers::pi);

@@ -6,6 +6,7 @@
 // here once per robot and joint state, by rendering the posed robot from eye positions.
 #pragma once
 
+#include <algorithm>
 #include <vector>
 
 #include "arref/base/geometry.h"
@@ -24,8 +25,12 @@ struct VisibilityOptions {
   bool floor = true;  // a floor at z = 0 of the base hides the faces standing on it
 };
 
-// The robot standing on a floor: a 20 m square at its base's z = 0 (or at its lowest point, if
-// lower), which hides the faces standing on it.
+// The height of the floor a robot model stands on (its base frame): z = 0, or its lowest point
+// when something of it hangs below that (robot_box: the model's bounds).
+inline float FloorHeight(const Aabb& robot_box) { return std::min(0.0f, robot_box.min.z()); }
+
+// The robot standing on a floor: a 20 m square at FloorHeight, which hides the faces standing
+// on it.
 TriangleMesh WithFloor(const TriangleMesh& robot_base);
 
 // Per sample point: the fraction of eye positions that see it (unoccluded, facing the eye).

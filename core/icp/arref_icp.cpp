@@ -354,7 +354,8 @@ std::vector<Vec3> SeenFrom(std::vector<Vec3> path_eyes, int walk) {
 // towards a table, even without noise). The chosen walk's surface is fused again with the mapped objects
 // round the fitted pose, and the pose polished with it.
 Result<Candidate> RefineInContext(const ArrefIcpInput& in, int walk, const TargetCloud& target, const Candidate& best,
-                                  std::shared_ptr<const PointCloud>* fitted, std::vector<std::string>* stages) {
+                                  std::shared_ptr<const PointCloud>* fitted, std::optional<TargetCloud>* dense,
+                                  std::vector<std::string>* stages) {
   const std::vector<Vec3> eyes = EyesOfPath(in.head_path_world, best.T_world_base);
   if (!eyes.empty()) {
     stages->push_back("head-path");
@@ -373,30 +374,36 @@ Result<Candidate> RefineInContext(const ArrefIcpInput& in, int walk, const Targe
   }
   *fitted = std::make_shared<const PointCloud>(Thinned(*surface, in.params.context_points));
   stages->push_back("in-context");
-  const std::optional<TargetCloud> dense = DenseTargetNear(in, **fitted, best.T_world_base);
+  *dense = DenseTargetNear(in, **fitted, best.T_world_base);
   if (Cancelled(in.cancel)) return CancelledIn("refit in context");
   // The surface's points weighed by how far the headset's tracking error moves them, as seen
   // from the eyes it was fused from (tracking_error.h).
   const std::vector<float> weights =
       TrackingErrorWeights(**fitted, SeenFrom(eyes, walk), in.params.tracking_error);
-  return Polish(**fitted, dense ? *dense : target, best, in.params, in.cancel, weights);
+  return Polish(**fitted, *dense ? **dense : target, best, in.params, in.cancel, weights);
 }
 
 // Which surface explains the scene: a fused headset mesh is matched by the expected surface,
 // exact geometry (a CAD scene, a fine scan) by the exact one. The winner is refined with the exact
 // visible surface too, and whichever lies closer to the scene's tangent planes is kept; *other gets
 // the pose the other one gave (how far the choice of model moves the fit: the expected error's
-// surface part, fit_precision.h).
+// surface part, fit_precision.h). Both are polished and compared on the scene sampled densely round
+// the robot (dense: the refit in context's, else sampled here), as the context's polish is: on
+// the request's sparse samples the exact polish stopped 2-12 mm apart from seed to seed on one
+// noise-free decimated mesh (docs/robustness.md, "The exact polish on the dense scene").
 Result<Candidate> ExactIfCloser(const ArrefIcpInput& in, const PointCloud& expected_fine, const TargetCloud& target,
-                                const Candidate& best, std::vector<std::string>* stages, Iso3* other) {
+                                std::optional<TargetCloud> dense, const Candidate& best, std::vector<std::string>* stages,
+                                Iso3* other) {
   const ArrefIcpParams& p = in.params;
   // Kept by the robot when there is one: no copy per request.
   const auto exact_kept = in.robot ? in.robot->Visible(p.fine_points)
                                    : std::make_shared<const PointCloud>(Thinned(VisiblePoints(in.model_base), p.fine_points));
   const PointCloud& exact_fine = *exact_kept;
-  ARREF_ASSIGN_OR_RETURN(const Candidate exact, Polish(exact_fine, target, best, p, in.cancel));
-  const double d_expected = MedianPlaneDistance(expected_fine, target, best.T_world_base, 0.03, 0.5);
-  const double d_exact = MedianPlaneDistance(exact_fine, target, exact.T_world_base, 0.03, 0.5);
+  if (!dense) dense = DenseTargetNear(in, exact_fine, best.T_world_base);
+  const TargetCloud& near = dense ? *dense : target;
+  ARREF_ASSIGN_OR_RETURN(const Candidate exact, Polish(exact_fine, near, best, p, in.cancel));
+  const double d_expected = MedianPlaneDistance(expected_fine, near, best.T_world_base, 0.03, 0.5);
+  const double d_exact = MedianPlaneDistance(exact_fine, near, exact.T_world_base, 0.03, 0.5);
   spdlog::debug("arref-icp: median plane distance {:.1f} mm expected surface, {:.1f} mm exact", d_expected * 1e3,
                 d_exact * 1e3);
   if (d_exact < d_expected) {
@@ -542,16 +549,19 @@ Result<RegistrationOutput> RegisterArrefIcp(const ArrefIcpInput& in) {
   int walk = -1;  // all round, unless a one-sided walk is chosen
   if (in.model_expected) {
     std::shared_ptr<const PointCloud> fitted = model[2];  // the surface polished last, shared not copied
+    std::optional<TargetCloud> dense;  // the scene sampled densely round the robot, once
     if (in.robot && p.select_walk) {
       ARREF_ASSIGN_OR_RETURN(refined.front(), RefineForWalk(in, fine, target, refined.front(), &fitted, &walk, &out.stages));
       out.step_ms.emplace_back("walk-choice", laps.Lap());
     }
     if (in.robot && in.scene_mesh_world && p.in_context) {
-      ARREF_ASSIGN_OR_RETURN(refined.front(), RefineInContext(in, walk, target, refined.front(), &fitted, &out.stages));
+      ARREF_ASSIGN_OR_RETURN(refined.front(),
+                             RefineInContext(in, walk, target, refined.front(), &fitted, &dense, &out.stages));
       out.step_ms.emplace_back("context", laps.Lap());
     }
     ARREF_ASSIGN_OR_RETURN(refined.front(),
-                           ExactIfCloser(in, *fitted, target, refined.front(), &out.stages, &out.T_world_base_other_surface));
+                           ExactIfCloser(in, *fitted, target, std::move(dense), refined.front(), &out.stages,
+                                         &out.T_world_base_other_surface));
     out.has_other_surface = true;
     out.step_ms.emplace_back("surface-choice", laps.Lap());
   }

@@ -240,6 +240,23 @@ TEST(RegisterScene, ArrefIcpWithPointsOnlyWithin10mm) {
   EXPECT_EQ(std::count(report.stages_run.begin(), report.stages_run.end(), "expected-surface"), 0);
 }
 
+// A caller may give an expected surface and its voxel without the mesh the scene was sampled
+// from (points only): the exact polish and the surface choice then use the scene samples given,
+// as nothing can be sampled densely (it dereferenced the missing mesh before).
+TEST(RegisterArrefIcp, AnExpectedSurfaceWithoutASceneMeshUsesTheSamples) {
+  ASSERT_OK_AND_ASSIGN(const testing::RobotSurfaceScene c, testing::MakeRobotSurfaceScene());
+  const TargetCloud target(c.scene_world);
+  ArrefIcpParams params;
+  params.position_steps = 0;
+  const Iso3 seed = c.T_world_base * MakeYawPose(0.1, 0.05, 0.15, 10 * std::numbers::pi / 180);
+  ArrefIcpInput in{c.model_base, c.scene_world, target, seed, params};
+  in.model_expected = std::make_shared<const PointCloud>(c.model_base);
+  in.voxel_m = 0.02;
+  ASSERT_OK_AND_ASSIGN(const RegistrationOutput out, RegisterArrefIcp(in));
+  EXPECT_TRUE(out.has_other_surface);  // the surface choice ran
+  EXPECT_LT(ComparePoses(out.T_world_base, c.T_world_base, c.model_base.points).add_m, kAddGoalM);
+}
+
 // The yaw search's capture level reaches across half the gap between two yaw hypotheses at the
 // robot's outer points, whatever the robot's size: a robot three times the built-in one, whose
 // outer points a 15-degree turn moves about 0.75 m, is found from a seed 0.25 m off and turned

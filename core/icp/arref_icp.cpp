@@ -311,7 +311,7 @@ Result<Candidate> RefineForWalk(const ArrefIcpInput& in, const PointCloud& all_r
 // voxel face: the triangles within the last polish's reach (2 cm) and a voxel of it.
 std::optional<TargetCloud> DenseTargetNear(const ArrefIcpInput& in, const PointCloud& surface_base, const Iso3& T_world_base) {
   const double density = in.params.context_target_density;
-  if (!(density > 0) || in.voxel_m <= 0) return std::nullopt;
+  if (!(density > 0) || in.voxel_m <= 0 || !in.scene_mesh_world) return std::nullopt;
   PointCloud surface_world = surface_base;
   surface_world.Transform(T_world_base);
   const PointIndex near_surface(std::move(surface_world.points));

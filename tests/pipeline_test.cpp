@@ -10,9 +10,11 @@
 #include <limits>
 #include <mutex>
 #include <numbers>
+#include <random>
 #include <string>
 #include <string_view>
 #include <thread>
+#include <tuple>
 
 #include "arref/base/cancel.h"
 #include "arref/fusion/robot_side.h"
@@ -238,6 +240,60 @@ TEST(RegisterScene, ArrefIcpWithPointsOnlyWithin10mm) {
   RecordProperty("add_mm", std::to_string(add * 1e3));
   EXPECT_LT(add, kAddGoalM);
   EXPECT_EQ(std::count(report.stages_run.begin(), report.stages_run.end(), "expected-surface"), 0);
+}
+
+// A column 0.1 m in radius and 1 m high with one small lug at mid height: nearly a figure of
+// revolution about its base's axis. Samples of its side and top (outward normals), the lug's face
+// every `lug_every`-th point of the side's height band at x > 0.
+PointCloud NearlyRoundColumn(std::size_t n, std::uint32_t seed) {
+  std::mt19937 rng(seed);
+  std::uniform_real_distribution<float> u(0.0f, 1.0f);
+  PointCloud c;
+  for (std::size_t i = 0; i < n; ++i) {
+    const float a = 2 * std::numbers::pi_v<float> * u(rng), z = u(rng);
+    if (i % 10 == 0) {  // the top
+      const float r = 0.1f * std::sqrt(u(rng));
+      c.points.emplace_back(r * std::cos(a), r * std::sin(a), 1.0f);
+      c.normals.emplace_back(0, 0, 1);
+    } else if (i % 50 == 1) {  // the lug's face, 3 cm out from the side
+      c.points.emplace_back(0.13f, 0.04f * (u(rng) - 0.5f), 0.45f + 0.1f * u(rng));
+      c.normals.emplace_back(1, 0, 0);
+    } else {
+      c.points.emplace_back(0.1f * std::cos(a), 0.1f * std::sin(a), z);
+      c.normals.emplace_back(std::cos(a), std::sin(a), 0);
+    }
+  }
+  return c;
+}
+
+// The fit is scored again turned about its base far enough to be a wrong pose (100 mm of ADD):
+// a nearly round column keeps its score turned so, and its status may not rest on the yaw; the
+// built-in arm loses much of it.
+TEST(RegisterArrefIcp, ScoresTheFitTurnedAboutItsBase) {
+  ASSERT_OK_AND_ASSIGN(const testing::RobotSurfaceScene arm, testing::MakeRobotSurfaceScene());
+  const PointCloud column = NearlyRoundColumn(6000, 1);
+  PointCloud column_world = NearlyRoundColumn(4000, 2);
+  column_world.Transform(arm.T_world_base);
+  ArrefIcpParams params;
+  params.position_steps = 0;
+  const Iso3 seed = arm.T_world_base * MakeYawPose(0.05, 0.02, 0.15, 5 * std::numbers::pi / 180);
+  const ConfidenceThresholds thresholds;
+  for (const auto& [model, scene, round] :
+       {std::tuple(&arm.model_base, &arm.scene_world, false), std::tuple(&column, static_cast<const PointCloud*>(&column_world), true)}) {
+    const TargetCloud target(*scene);
+    ASSERT_OK_AND_ASSIGN(const RegistrationOutput out,
+                         RegisterArrefIcp(ArrefIcpInput{*model, *scene, target, seed, params}));
+    ASSERT_TRUE(out.has_turned);
+    RecordProperty(round ? "column_turned_lead" : "arm_turned_lead", std::to_string(out.turned_lead));
+    if (round) {
+      // 100 mm at the points' mean distance from the axis: 0.1 m on the side, less on the top.
+      EXPECT_GT(out.turned_deg, 57.2);
+      EXPECT_LE(out.turned_deg, 60.0);
+      EXPECT_LT(out.turned_lead, thresholds.ok_min_turned_lead);
+    } else {
+      EXPECT_GT(out.turned_lead, 2 * thresholds.ok_min_turned_lead);
+    }
+  }
 }
 
 // A caller may give an expected surface and its voxel without the mesh the scene was sampled

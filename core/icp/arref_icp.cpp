@@ -524,6 +524,30 @@ Result<std::vector<Candidate>> SearchPoses(const ArrefIcpInput& in,
   return RefineBest(candidates, *model[1], *model[2], target, p, in.cancel);
 }
 
+// The fit turned about the base's axis far enough to be a wrong pose: 100 mm of ADD, the turn
+// times the fitted model's mean distance from the axis (at most 60 degrees), either way. An arm
+// that is nearly a figure of revolution keeps its score turned so, and its fit can slide along
+// that flat yaw valley while every refined candidate ends at one pose, which leaves the margin
+// nothing to compare (docs/robustness.md, "The fit turned about its base").
+void ScoreTurned(const PointCloud& fine, const TargetCloud& target, RegistrationOutput* out) {
+  constexpr double kWrongAddM = 0.1;
+  double mean_r = 0;
+  for (const Vec3f& q : fine.points) mean_r += q.head<2>().norm();
+  mean_r /= static_cast<double>(std::max<std::size_t>(1, fine.size()));
+  if (!(mean_r > 0)) return;
+  const double turn = std::min(kWrongAddM / mean_r, std::numbers::pi / 3);
+  double rival = 0;
+  for (double sign : {-1.0, 1.0}) {
+    const Iso3 turned = out->T_world_base * MakeYawPose(0, 0, 0, sign * turn);
+    rival = std::max(rival, ScoreAlignment(fine, target, turned, 0.02, 0.5).inlier_fraction);
+  }
+  out->has_turned = true;
+  out->turned_deg = turn / kDegree;
+  out->turned_lead = ScoreAlignment(fine, target, out->T_world_base, 0.02, 0.5).inlier_fraction - rival;
+  spdlog::debug("arref-icp: turned {:.1f} deg about the base, the fit leads by {:.3f}", out->turned_deg,
+                out->turned_lead);
+}
+
 }  // namespace
 
 Result<RegistrationOutput> RegisterArrefIcp(const ArrefIcpInput& in) {
@@ -576,6 +600,7 @@ Result<RegistrationOutput> RegisterArrefIcp(const ArrefIcpInput& in) {
   }
   out.score = refined.front().score;
   out.margin = refined.size() > 1 ? refined[0].score - refined[1].score : refined[0].score;
+  ScoreTurned(fine, target, &out);
   out.iterations += refined.front().iterations;
   out.converged = true;
   return out;

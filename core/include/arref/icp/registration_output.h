@@ -26,6 +26,10 @@ struct RegistrationOutput {
   // and the exact visible one) and keeps one: the pose the other gave (when has_other_surface).
   bool has_other_surface = false;
   Iso3 T_world_base_other_surface = Iso3::Identity();
+  // arref-icp also scores the fit turned about the base's axis by turned_deg, far enough to be a
+  // wrong pose: turned_lead is the fit's score less the better of the two turns (when has_turned).
+  bool has_turned = false;
+  double turned_deg = 0.0, turned_lead = 0.0;
   std::vector<std::pair<std::string, double>> step_ms;  // the method's own steps, in order (profiling)
 };
 

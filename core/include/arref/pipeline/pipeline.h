@@ -40,6 +40,9 @@ struct RegistrationReport {
   double inlier_fraction = 0.0;     // visible model points within inlier_threshold_m of the scene
   double score = -1.0;              // method's own ranking score and ambiguity margin (-1: none)
   double margin = -1.0;
+  // The fit's score lead over itself turned turned_deg about the base (RegistrationOutput's).
+  bool has_turned = false;
+  double turned_deg = 0.0, turned_lead = 0.0;
   int hypotheses = 0;
   // How far the pose may be off (fit_precision.h): the fit's residuals, the headset map's
   // tracking error and the surface models' disagreement. Not whether it is in the right place.

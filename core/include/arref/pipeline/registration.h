@@ -26,6 +26,11 @@ class RobotSide;  // fusion/robot_side.h
 struct ConfidenceThresholds {
   double ok_min_inlier_fraction = 0.25;  // visible model points within inlier_threshold_m of the scene
   double ok_min_margin = 0.08;           // score lead over the best distinct alternative pose
+  // ... and over the fit turned about the base by 100 mm of ADD: an arm that is nearly a figure
+  // of revolution slides along its yaw valley, and every refined candidate ends at one pose.
+  // Good fits of the dev robots lead by 0.047 or more, wrong ones of a slender proxy arm by
+  // 0.02 or less (docs/robustness.md, "The fit turned about its base").
+  double ok_min_turned_lead = 0.03;
   double failed_below_inlier_fraction = 0.15;
   // A headset mesh with fewer voxels than this across the robot's largest side is not OK: its fused
   // shell leaves a small arm's pose uncertain by more than a centimetre (docs/robustness.md).

@@ -283,15 +283,15 @@ TEST(RegisterArrefIcp, ScoresTheFitTurnedAboutItsBase) {
     const TargetCloud target(*scene);
     ASSERT_OK_AND_ASSIGN(const RegistrationOutput out,
                          RegisterArrefIcp(ArrefIcpInput{*model, *scene, target, seed, params}));
-    ASSERT_TRUE(out.has_turned);
-    RecordProperty(round ? "column_turned_lead" : "arm_turned_lead", std::to_string(out.turned_lead));
+    ASSERT_TRUE(out.turned.has_value());
+    RecordProperty(round ? "column_turned_lead" : "arm_turned_lead", std::to_string(out.turned->lead));
     if (round) {
       // 100 mm at the points' mean distance from the axis: 0.1 m on the side, less on the top.
-      EXPECT_GT(out.turned_deg, 57.2);
-      EXPECT_LE(out.turned_deg, 60.0);
-      EXPECT_LT(out.turned_lead, thresholds.ok_min_turned_lead);
+      EXPECT_GT(out.turned->turn_deg, 57.2);
+      EXPECT_LE(out.turned->turn_deg, 60.0);
+      EXPECT_LT(out.turned->lead, thresholds.ok_min_turned_lead);
     } else {
-      EXPECT_GT(out.turned_lead, 2 * thresholds.ok_min_turned_lead);
+      EXPECT_GT(out.turned->lead, 2 * thresholds.ok_min_turned_lead);
     }
   }
 }

@@ -541,11 +541,10 @@ void ScoreTurned(const PointCloud& fine, const TargetCloud& target, Registration
     const Iso3 turned = out->T_world_base * MakeYawPose(0, 0, 0, sign * turn);
     rival = std::max(rival, ScoreAlignment(fine, target, turned, 0.02, 0.5).inlier_fraction);
   }
-  out->has_turned = true;
-  out->turned_deg = turn / kDegree;
-  out->turned_lead = ScoreAlignment(fine, target, out->T_world_base, 0.02, 0.5).inlier_fraction - rival;
-  spdlog::debug("arref-icp: turned {:.1f} deg about the base, the fit leads by {:.3f}", out->turned_deg,
-                out->turned_lead);
+  out->turned = TurnedFit{.turn_deg = turn / kDegree,
+                          .lead = ScoreAlignment(fine, target, out->T_world_base, 0.02, 0.5).inlier_fraction - rival};
+  spdlog::debug("arref-icp: turned {:.1f} deg about the base, the fit leads by {:.3f}", out->turned->turn_deg,
+                out->turned->lead);
 }
 
 }  // namespace

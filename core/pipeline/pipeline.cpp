@@ -101,9 +101,9 @@ void AssignStatus(const ConfidenceThresholds& t, bool calibrated, const std::str
     why = "the confidence thresholds were not calibrated on this method's fits";
   else if (r->margin < t.ok_min_margin)
     why = fmt::format("ambiguous: another pose fits almost as well (margin {:.3f})", r->margin);
-  else if (r->has_turned && r->turned_lead < t.ok_min_turned_lead)
+  else if (r->turned && r->turned->lead < t.ok_min_turned_lead)
     why = fmt::format("the yaw is uncertain: turned {:.0f} degrees about its base the robot fits almost as well "
-                      "(lead {:.3f})", r->turned_deg, r->turned_lead);
+                      "(lead {:.3f})", r->turned->turn_deg, r->turned->lead);
   else if (!coarse_mesh.empty())
     why = coarse_mesh;
   else if (!not_as_posed.empty())
@@ -266,9 +266,7 @@ Result<RegistrationReport> Register(const PointCloud& model_base, const RobotSid
   report.converged = out->converged;
   report.score = out->score;
   report.margin = out->margin;
-  report.has_turned = out->has_turned;
-  report.turned_deg = out->turned_deg;
-  report.turned_lead = out->turned_lead;
+  report.turned = out->turned;
   report.hypotheses = out->hypotheses;
   for (const auto& [step, ms] : out->step_ms) report.method_steps.push_back({step, ms});
   report.stages_run.insert(report.stages_run.end(), out->stages.begin(), out->stages.end());

@@ -1,6 +1,7 @@
 // What every registration method returns: the pose, what ran, and its own ranking figures.
 #pragma once
 
+#include <optional>
 #include <string>
 #include <utility>
 #include <vector>
@@ -8,6 +9,13 @@
 #include "arref/base/geometry.h"
 
 namespace arref {
+
+// arref-icp scores its fit again turned about the base's axis far enough to be a wrong pose
+// (100 mm of ADD, either way): how far it turned, and the fit's score less the better turn's.
+struct TurnedFit {
+  double turn_deg = 0.0;
+  double lead = 0.0;
+};
 
 struct RegistrationOutput {
   Iso3 T_world_base = Iso3::Identity();
@@ -26,10 +34,7 @@ struct RegistrationOutput {
   // and the exact visible one) and keeps one: the pose the other gave (when has_other_surface).
   bool has_other_surface = false;
   Iso3 T_world_base_other_surface = Iso3::Identity();
-  // arref-icp also scores the fit turned about the base's axis by turned_deg, far enough to be a
-  // wrong pose: turned_lead is the fit's score less the better of the two turns (when has_turned).
-  bool has_turned = false;
-  double turned_deg = 0.0, turned_lead = 0.0;
+  std::optional<TurnedFit> turned;  // arref-icp's; none from the other methods
   std::vector<std::pair<std::string, double>> step_ms;  // the method's own steps, in order (profiling)
 };
 

@@ -12,6 +12,7 @@
 #include "arref/base/cancel.h"
 #include "arref/fusion/robot_side.h"
 #include "arref/icp/fit_precision.h"
+#include "arref/icp/registration_output.h"
 #include "arref/pipeline/registration.h"
 #include "arref/robot/robot_model.h"
 #include "arref/scene/sampling.h"
@@ -40,9 +41,7 @@ struct RegistrationReport {
   double inlier_fraction = 0.0;     // visible model points within inlier_threshold_m of the scene
   double score = -1.0;              // method's own ranking score and ambiguity margin (-1: none)
   double margin = -1.0;
-  // The fit's score lead over itself turned turned_deg about the base (RegistrationOutput's).
-  bool has_turned = false;
-  double turned_deg = 0.0, turned_lead = 0.0;
+  std::optional<TurnedFit> turned;  // the fit against itself turned about its base (the method's)
   int hypotheses = 0;
   // How far the pose may be off (fit_precision.h): the fit's residuals, the headset map's
   // tracking error and the surface models' disagreement. Not whether it is in the right place.

@@ -249,6 +249,12 @@ Result<Candidate> Approach(const PointCloud& approach, const TargetCloud& target
   return Candidate{st.T_target_source, start.score, start.iterations + st.iterations};
 }
 
+// A refined pose's score, the one the margin and the turned check compare: the share of the
+// fitted model's points within 2 cm of the scene with normals within 60 degrees.
+double RefinedScore(const PointCloud& fine, const TargetCloud& target, const Iso3& T_world_base) {
+  return ScoreAlignment(fine, target, T_world_base, 0.02, 0.5).inlier_fraction;
+}
+
 Result<Candidate> Refine(const PointCloud& fine, const TargetCloud& target, const Candidate& start,
                          const ArrefIcpParams& p, const std::vector<double>& levels, const CancelToken* cancel,
                          std::span<const float> weights = {}) {
@@ -260,8 +266,7 @@ Result<Candidate> Refine(const PointCloud& fine, const TargetCloud& target, cons
     ARREF_ASSIGN_OR_RETURN(st, AlignOrCancel(fine, target, st.T_target_source, {0.012}, s, "refinement", weights));
     iterations += st.iterations;
   }
-  return Candidate{st.T_target_source, ScoreAlignment(fine, target, st.T_target_source, 0.02, 0.5).inlier_fraction,
-                   iterations};
+  return Candidate{st.T_target_source, RefinedScore(fine, target, st.T_target_source), iterations};
 }
 
 // A refined pose polished with another surface: the pose moves, its score stays, the
@@ -539,10 +544,9 @@ void ScoreTurned(const PointCloud& fine, const TargetCloud& target, Registration
   double rival = 0;
   for (double sign : {-1.0, 1.0}) {
     const Iso3 turned = out->T_world_base * MakeYawPose(0, 0, 0, sign * turn);
-    rival = std::max(rival, ScoreAlignment(fine, target, turned, 0.02, 0.5).inlier_fraction);
+    rival = std::max(rival, RefinedScore(fine, target, turned));
   }
-  out->turned = TurnedFit{.turn_deg = turn / kDegree,
-                          .lead = ScoreAlignment(fine, target, out->T_world_base, 0.02, 0.5).inlier_fraction - rival};
+  out->turned = TurnedFit{.turn_deg = turn / kDegree, .lead = RefinedScore(fine, target, out->T_world_base) - rival};
   spdlog::debug("arref-icp: turned {:.1f} deg about the base, the fit leads by {:.3f}", out->turned->turn_deg,
                 out->turned->lead);
 }

@@ -277,6 +277,21 @@ TEST(Tracker, HoldsThePoseWhileClutterPullsTheFits) {
   EXPECT_GE(o.within_10mm, 0.83 * o.scored) << o.within_10mm << " of " << o.scored;
 }
 
+// The built-in robot's stream 0 in long-throw frames of the held-back draw --rng-seed 18 (the
+// bench's simulator seed; a development stream since that draw was looked at). After its 0.68 m
+// jump the re-referenced filter started 9 mm and 0.7 deg off, and each fit from it stopped a step
+// or two later on ICP's flat-cost test, so the filter took its own error back as a measurement
+// and sat 12-17 mm off for 1.1 s with the arm in view: 281 of 330 frames within 10 mm, recovered
+// in 1.10 s. The tracker's fits now run until their step is tiny: 312, recovered in 0.73 s.
+TEST(Tracker, FitsFromARestartedFilterDoNotEchoIt) {
+  auto robot = Builtin();
+  ASSERT_TRUE(robot);
+  sim::TrackSimOptions options;
+  options.duration_s = 12.0;
+  const StreamOutcome o = RunStream(robot, options, 11195231765048928583ull, true);
+  ExpectTracked(o, 250, 0.92, 0.9);
+}
+
 std::shared_ptr<const RobotModel> SharedRobot(const std::string& urdf) {
   auto loaded = RobotModel::Load(testing::SharedDir() + "/robots/" + urdf,
                                  RobotLoadOptions{.package_path = {testing::SharedDir() + "/robots"}});

@@ -373,6 +373,7 @@ Measurement Tracker::Impl::Measure(const DepthFrame& f, const Iso3& T0, const st
   IcpSettings icp;
   icp.yaw_only = true;
   icp.max_iterations = iterations;
+  icp.converged_cost_ratio = settings.icp_converged_cost_ratio;
   auto fit = AlignCoarseToFine(source, target, T0.inverse(), distances, icp);
   out->icp_ms += lap.Lap();
   if (!fit.ok() || fit->correspondences < settings.min_model_points / 2) return m;

@@ -30,6 +30,11 @@ struct TrackerSettings {
   double floor_clearance_m = 0.03;       // depth points this close above the base's bottom are floor
   std::vector<double> icp_distances_m = {0.06, 0.025};
   int icp_iterations = 12;
+  // ICP's stop on a cost that hardly changes (IcpSettings::converged_cost_ratio) saves the
+  // one-shot search iterations; here it would end a fit that starts a few mm off one or two steps
+  // from its start, where the cost is flat, and the filter would take its own prediction back as
+  // a measurement. So each level runs until its step is tiny or icp_iterations (0: no such stop).
+  double icp_converged_cost_ratio = 0.0;
   double kernel_min_m = 0.008;
   // A model pixel agrees with the depth when they differ by less than this (plus 2 % of range);
   // it disagrees when the depth lies behind the model by more (seen through the model).

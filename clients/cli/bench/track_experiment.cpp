@@ -87,6 +87,14 @@ struct StreamSpec {
   bool minutes = false;     // keep the first and last minute's ADD
 };
 
+// A pose's error in the true base's frame (x, y, z and yaw of T_base_true^-1 T): a bias shows
+// as a sign that holds over frames, which ADD alone hides (how draw 18's echoing fits were found).
+std::string ErrorInBase(const sim::SimFrame& f, const Iso3& T_world_base) {
+  const Iso3 d = f.T_world_base_true.inverse() * T_world_base;
+  const Vec3 t = 1000 * d.translation();
+  return fmt::format("({:+.1f} {:+.1f} {:+.1f} mm {:+.2f} deg)", t.x(), t.y(), t.z(), YawOf(d) / kDegree);
+}
+
 Result<StreamStats> RunStream(const StreamSpec& spec) {
   ARREF_ASSIGN_OR_RETURN(sim::TrackSimulator simulator, sim::TrackSimulator::Create(spec.robot, spec.options, spec.seed));
   StreamStats s;
@@ -112,9 +120,10 @@ Result<StreamStats> RunStream(const StreamSpec& spec) {
     s.model_points += static_cast<double>(r.model_points) / frame_count;
     const double add_mm = 1000 * step.add_m;
     if (spdlog::should_log(spdlog::level::debug))
-      spdlog::debug("track frame {} t {:.3f}: {} ADD {:.1f} mm, measured {:.1f} mm, agreement {:.2f} (filter {:.2f}), {} model / {} depth points, {:.1f} ms",
-                    step.index, f.true_time_s, TrackStateName(r.state), add_mm,
+      spdlog::debug("track frame {} t {:.3f}: {} ADD {:.1f} mm {}, measured {:.1f} mm {}, agreement {:.2f} (filter {:.2f}), {} model / {} depth points, {:.1f} ms",
+                    step.index, f.true_time_s, TrackStateName(r.state), add_mm, ErrorInBase(f, r.T_world_base),
                     r.T_world_base_measured ? 1000 * ComparePoses(*r.T_world_base_measured, f.T_world_base_true, step.add_points).add_m : -1.0,
+                    r.T_world_base_measured ? ErrorInBase(f, *r.T_world_base_measured) : std::string(),
                     r.agreement, r.agreement_filtered, r.model_points, r.depth_points, r.total_ms);
     recovery.Add(step);
 #ifdef ARREF_WITH_PCL

@@ -1,12 +1,16 @@
 // `arref bench --quick` end to end: every file, every table row, and numbers that make sense.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <iterator>
 #include <map>
+#include <sstream>
+#include <string>
+#include <vector>
 
 #include "test_support.h"
 
@@ -251,6 +255,32 @@ TEST(Bench, RobustnessWithPedestalsStandsArmsOnThem) {
   ASSERT_NE(all, nullptr);
   EXPECT_EQ(all->at("runs"), "6");
   EXPECT_EQ(Percent(all->at("ADD<=20mm")), 100.0) << "every base found on its pedestal or floor";
+}
+
+// `--head-path`: each robustness request carries where the cell's wearer walked (as the mock
+// headset and a HoloLens app send it), and arref-icp's refit fuses the robot from those eyes;
+// without it no request has a path and the refit assumes a walk.
+TEST(Bench, RobustnessSendsTheWearersPathWhenAsked) {
+  for (const bool path : {false, true}) {
+    SCOPED_TRACE(path ? "--head-path" : "no path");
+    const std::string out = ::testing::TempDir() + "/arref_bench_head_path";
+    std::filesystem::remove_all(out);
+    const auto r = testing::RunCommand(std::string(ARREF_BINARY_DIR) +
+                                       "/clients/cli/arref bench --only robustness --robots builtin --meshers own "
+                                       "--seed-families user --robust-cells 1 --robust-seeds 2 --out " + out +
+                                       (path ? " --head-path" : ""));
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    const Table runs = ReadCsv(out + "/runs.csv");
+    ASSERT_EQ(runs.size(), 2u);
+    for (const auto& run : runs) {
+      std::vector<std::string> stages;
+      std::stringstream in(run.at("stages"));
+      for (std::string s; std::getline(in, s, ';');) stages.push_back(s);
+      const bool used = std::find(stages.begin(), stages.end(), "head-path") != stages.end();
+      EXPECT_EQ(used, path) << run.at("stages");
+      EXPECT_LE(Cell(run, "add_mm"), 10.0) << run.at("stages");
+    }
+  }
 }
 
 }  // namespace

@@ -187,8 +187,8 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
                 "centre within 30 deg, 1.5-2.4 m off, eyes 1.5-1.8 m high, 16-32 views, 0.1 m wander (default: the "
                 "simulator's regular arc)");
   cmd->add_flag("--head-path", args->head_path,
-                "Scenes experiment: each request sends where its cell's user walked while mapping, as a HoloLens app "
-                "can (RegisterRequest.head_path)");
+                "Scenes, robustness and auto experiments: each request sends where its cell's (room's) user walked "
+                "while mapping, as a HoloLens app can (RegisterRequest.head_path)");
   cmd->add_option("--walk-arc", args->walk_arc_deg,
                   "Scenes experiment: the arc the simulated user walks round the robot, deg (default 220)")
       ->check(CLI::Range(30.0, 360.0));

@@ -44,7 +44,7 @@ struct AutoRun {
 // One room, every method: simulate, build the robot side once (untimed, as the server caches it),
 // then each method over the whole map against the room's ground truth.
 std::vector<AutoRun> RunRoom(const BenchRobot& robot, const BenchRobot* other, sim::Mesher mesher, int arms, int index,
-                             std::uint64_t seed, const std::vector<std::string>& methods) {
+                             std::uint64_t seed, const std::vector<std::string>& methods, bool head_path) {
   AutoRun label;
   label.robot = robot.label, label.mesher = sim::MesherName(mesher), label.arms = arms, label.room = index;
   label.other = other ? other->label : "";
@@ -81,6 +81,7 @@ std::vector<AutoRun> RunRoom(const BenchRobot& robot, const BenchRobot* other, s
     r.method = method;
     RegistrationOptions o;
     o.method = *ParseMethod(method);  // checked by the command
+    if (head_path) o.head_path_world = room->head_path_world;
     auto report = RegisterWholeMap(**side, scene, o);
     if (!report.ok()) {
       r.error = report.status().ToString();
@@ -239,7 +240,7 @@ Status AutoExperiment(const Config& config, Tables* tables) {
     const Task& k = tasks[t];
     // Every other room holds an arm of the next robot too, when there is another.
     const BenchRobot* other = robots.size() > 1 && k.index % 2 == 1 ? &robots[(k.robot + 1) % robots.size()] : nullptr;
-    results[t] = RunRoom(robots[k.robot], other, k.mesher, k.arms, k.index, k.seed, config.auto_methods);
+    results[t] = RunRoom(robots[k.robot], other, k.mesher, k.arms, k.index, k.seed, config.auto_methods, config.head_path);
   };
   if (config.jobs <= 1) {
     for (std::size_t t = 0; t < tasks.size(); ++t) one(t);
@@ -252,8 +253,9 @@ Status AutoExperiment(const Config& config, Tables* tables) {
   std::vector<std::string> labels;
   for (const auto& r : robots) labels.push_back(r.label);
   ARREF_RETURN_IF_ERROR(Write(config, runs, config.auto_methods, labels));
-  tables->notes.push_back(fmt::format("auto: {} split, {} rooms, {} room(s) per robot and arm count and mesher; tables in auto.md",
-                                      rc.split, tasks.size(), per));
+  tables->notes.push_back(fmt::format("auto: {} split, {} rooms, {} room(s) per robot and arm count and mesher{}; tables in auto.md",
+                                      rc.split, tasks.size(), per,
+                                      config.head_path ? ", each request sending the wearer's path" : ""));
   return Status::Ok();
 }
 

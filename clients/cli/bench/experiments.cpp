@@ -245,6 +245,7 @@ Status RobustnessExperiment(const Config& config, Tables* tables) {
               job.T_world_seed = seeds[static_cast<std::size_t>(s)];
               job.options = BaseOptions(method, "small");  // the 2 m crop, 16,000 scene samples
               job.options.map_not_as_posed = c.map_not_as_posed;
+              if (config.head_path) job.options.head_path_world = c.sim.head_path_world;
               job.run = Label("robustness", method, "small", "", c, s);
               job.run.robot = robot.label, job.run.mesher = sim::MesherName(mesher);
               job.run.seed_family = sim::SeedFamilyName(family);
@@ -279,7 +280,9 @@ Status RobustnessExperiment(const Config& config, Tables* tables) {
                                       rc.split,
                                       (rc.motion == "none" ? std::string()
                                                            : fmt::format(" (joints moving while mapping: {}; fit: {})", rc.motion, rc.moving_fit)) +
-                                          (rc.pedestals ? " (arms on pedestals)" : ""), fmt::join([&] {
+                                          (rc.pedestals ? " (arms on pedestals)" : "") +
+                                          (config.head_path ? " (each request sends the wearer's path)" : ""),
+                                      fmt::join([&] {
                                         std::vector<std::string> names;
                                         for (const auto& r : *robots) names.push_back(r.label);
                                         return names;

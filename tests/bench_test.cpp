@@ -279,6 +279,9 @@ TEST(Bench, RobustnessSendsTheWearersPathWhenAsked) {
       const bool used = std::find(stages.begin(), stages.end(), "head-path") != stages.end();
       EXPECT_EQ(used, path) << run.at("stages");
       EXPECT_LE(Cell(run, "add_mm"), 10.0) << run.at("stages");
+      // The fit against where the mesh put the robot: the method's own error, a few mm here.
+      EXPECT_GE(Cell(run, "method_error_mm"), 0.0);
+      EXPECT_LE(Cell(run, "method_error_mm"), 10.0);
     }
   }
 }

@@ -670,6 +670,21 @@ TEST(CellSimulator, MeshErrorOfTheOwnMesherIsTheViewsTrackingError) {
   RecordProperty("mesh_error_um", static_cast<int>(std::lround(jittered->mesh_error_add_m * 1e6)));
   EXPECT_GT(jittered->mesh_error_add_m, 2e-4);
   EXPECT_LT(jittered->mesh_error_add_m, 0.01);
+  // Where the mesh put the base: the truth without tracking error; with it, an upright pose
+  // whose ADD over the robot's surface is the mesh error (over other samples of that surface).
+  ASSERT_TRUE(still->T_world_base_mesh.has_value());
+  EXPECT_TRUE(still->T_world_base_mesh->isApprox(still->T_world_base, 1e-9));
+  ASSERT_TRUE(jittered->T_world_base_mesh.has_value());
+  const Iso3& mesh = *jittered->T_world_base_mesh;
+  EXPECT_NEAR((mesh.linear() * Vec3::UnitZ()).z(), 1.0, 1e-12) << "gravity-aligned";
+  auto posed = BuiltinRobot().PosedMesh(jittered->joints);
+  ASSERT_TRUE(posed.ok()) << posed.status().ToString();
+  const PointCloud surface = SampleSurface(*posed, 5000, 3);
+  double add = 0;
+  for (const Vec3f& p : surface.points)
+    add += (mesh * p.cast<double>() - jittered->T_world_base * p.cast<double>()).norm();
+  add /= static_cast<double>(surface.size());
+  EXPECT_NEAR(add, jittered->mesh_error_add_m, 0.1 * jittered->mesh_error_add_m);
 }
 
 TEST(Open3dMesher, DeviceVariationsStayInTheirRanges) {

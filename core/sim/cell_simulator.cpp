@@ -409,6 +409,14 @@ std::optional<MeshImprint> RobotImprint(const RobotModel& robot, const CellScene
   return MeshImprint(std::move(points), T_world_base.translation());
 }
 
+// The mesh error of the cell (SimulatedCell::mesh_error_add_m) and where it put the base.
+void SetMeshError(const MeshImprint& imprint, const std::function<Iso3(const Vec3&)>& T_moved_true_at,
+                  SimulatedCell* cell) {
+  const std::optional<Iso3> T_mesh_true = imprint.Motion(T_moved_true_at);
+  cell->mesh_error_add_m = imprint.Add(T_moved_true_at);
+  if (T_mesh_true) cell->T_world_base_mesh = *T_mesh_true * cell->T_world_base;
+}
+
 // The per-surface head-pose errors of the device's mesher at a world point (ErrorOfCube, the
 // draw the mesher made).
 std::function<Iso3(const Vec3&)> SurfaceErrors(const DeviceVariation& device, int updates, std::uint64_t rng_seed) {
@@ -643,7 +651,7 @@ Result<SimulatedCell> SimulateCell(const RobotModel& robot, const SimOptions& re
     if (!surfaces.ok()) return surfaces.status().WithContext("simulating the headset's scan (open3d mesher)");
     cell.surfaces = std::move(*surfaces);
     for (const Surface& s : cell.surfaces) triangles += s.mesh.triangles.size();
-    if (imprint) cell.mesh_error_add_m = imprint->Add(SurfaceErrors(device, std::max(1, device.surface_updates), rng_seed));
+    if (imprint) SetMeshError(*imprint, SurfaceErrors(device, std::max(1, device.surface_updates), rng_seed), &cell);
   } else {
     cell.voxel_m = VoxelSize(options.fusion);
     auto fused = ScanAndFuse(*scene, robot, options, cell.T_world_cell, cell.voxel_m, rng_seed, rng, &cell.head_path_world,
@@ -651,7 +659,7 @@ Result<SimulatedCell> SimulateCell(const RobotModel& robot, const SimOptions& re
     if (!fused.ok()) return fused.status().WithContext("simulating the headset's scan");
     triangles = fused->triangles.size();
     cell.surfaces = SplitIntoSurfaces(*fused, options.fusion.surface_chunk_m, options.scan.views * kSecondsPerView);
-    if (imprint) cell.mesh_error_add_m = imprint->Add();
+    if (imprint) SetMeshError(*imprint, {}, &cell);
   }
   if (triangles == 0)
     return Status::FailedPrecondition("simulated scan saw nothing within fusion.crop_radius_m = " +

@@ -32,7 +32,7 @@ std::size_t MeshImprint::seen() const {
   return static_cast<std::size_t>(std::count_if(views_.begin(), views_.end(), [](int v) { return v > 0; }));
 }
 
-double MeshImprint::Add(const std::function<Iso3(const Vec3&)>& T_moved_true_at) const {
+std::optional<Iso3> MeshImprint::Motion(const std::function<Iso3(const Vec3&)>& T_moved_true_at) const {
   // Linearised point-to-plane least squares in (x, y, z, yaw): n . (t + yaw z x (p - base)) = n . (p' - p).
   Eigen::Matrix4d JtJ = Eigen::Matrix4d::Zero();
   Eigen::Vector4d Jtr = Eigen::Vector4d::Zero();
@@ -47,15 +47,20 @@ double MeshImprint::Add(const std::function<Iso3(const Vec3&)>& T_moved_true_at)
     JtJ += J * J.transpose();
     Jtr += J * n.dot(moved - x);
   }
-  if (seen() < 20) return -1.0;
+  if (seen() < 20) return std::nullopt;
   const Eigen::LDLT<Eigen::Matrix4d> solver(JtJ);
-  if (solver.info() != Eigen::Success) return -1.0;
+  if (solver.info() != Eigen::Success) return std::nullopt;
   const Eigen::Vector4d u = solver.solve(Jtr);
-  const Iso3 T = Eigen::Translation3d(base_ + u.head<3>()) * Eigen::AngleAxisd(u[3], Vec3::UnitZ()) *
-                 Eigen::Translation3d(-base_);
+  return Iso3(Eigen::Translation3d(base_ + u.head<3>()) * Eigen::AngleAxisd(u[3], Vec3::UnitZ()) *
+              Eigen::Translation3d(-base_));
+}
+
+double MeshImprint::Add(const std::function<Iso3(const Vec3&)>& T_moved_true_at) const {
+  const std::optional<Iso3> T = Motion(T_moved_true_at);
+  if (!T || robot_.points.empty()) return -1.0;
   double sum = 0;
-  for (const Vec3f& p : robot_.points) sum += (T * p.cast<double>() - p.cast<double>()).norm();
-  return robot_.points.empty() ? -1.0 : sum / static_cast<double>(robot_.points.size());
+  for (const Vec3f& p : robot_.points) sum += (*T * p.cast<double>() - p.cast<double>()).norm();
+  return sum / static_cast<double>(robot_.points.size());
 }
 
 }  // namespace arref::sim::detail

@@ -9,6 +9,7 @@
 #pragma once
 
 #include <functional>
+#include <optional>
 #include <vector>
 
 #include "arref/base/geometry.h"
@@ -32,6 +33,8 @@ class MeshImprint {
   // that were seen: moved along their normal by the mean of their views' moves, then by
   // `T_moved_true_at` (a surface's error at a world point; empty: none). -1 with too few seen.
   double Add(const std::function<Iso3(const Vec3&)>& T_moved_true_at = {}) const;
+  // That motion itself (world: the true robot to where the mesh put it); none with too few seen.
+  std::optional<Iso3> Motion(const std::function<Iso3(const Vec3&)>& T_moved_true_at = {}) const;
 
   std::size_t seen() const;
 

@@ -136,6 +136,9 @@ struct Run {
   double total_ms = 0;
   double peak_mb = 0;
   double mesh_error_m = -1;  // the cell's SimulatedCell::mesh_error_add_m (-1: not measured)
+  // The fit's ADD against where the mesh put the robot (SimulatedCell::T_world_base_mesh): the
+  // method's own error, the mesh's taken out (-1: not measured).
+  double method_error_m = -1;
   FitPrecision precision;    // the result's own (invalid where none was measured)
   std::string stages;        // the result's stages_run, ';'-separated
 };
@@ -170,6 +173,7 @@ struct Row {
   double iteration_median_ms = 0;  // register time / iterations, median over the runs that report them
   double peak_mb = 0;
   double mesh_error_median_mm = std::nan("");  // over runs whose cell measured it
+  double method_error_median_mm = std::nan("");  // Run::method_error_m, the same runs
   std::size_t mesh_good_runs = 0;               // runs on cells whose mesh error is under 5 mm
   double success_mesh_good = 0;                 // share of those within ADD 10 mm
   // The results' own expected error (Result.expected_error_m), over the runs that gave one, and

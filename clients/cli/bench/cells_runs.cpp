@@ -81,6 +81,8 @@ void ExecuteOne(Job& job) {
   run.status = ResultStatusName(report->status);
   run.rms_m = report->rms_m, run.add_m = e.add_m, run.translation_m = e.translation_m, run.rotation_deg = e.rotation_deg;
   run.vertical_m = e.vertical_m, run.horizontal_m = e.horizontal_m;
+  if (cell.sim.T_world_base_mesh)
+    run.method_error_m = ComparePoses(report->T_world_base, *cell.sim.T_world_base_mesh, cell.robot->samples().points).add_m;
   run.iterations = report->iterations;
   run.precision = report->precision;
   run.stages = fmt::format("{}", fmt::join(report->stages_run, ";"));
@@ -265,7 +267,7 @@ Row Summarise(const std::vector<const Run*>& runs, std::map<std::string, std::st
   row.runs = runs.size();
   std::vector<double> rms, add, translation, rotation, reg, total, mls, per_iteration;
   std::size_t successes = 0, within_20 = 0, said_ok = 0, mesh_good_successes = 0;
-  std::vector<double> mesh_error, expected_error;
+  std::vector<double> mesh_error, method_error, expected_error;
   std::size_t within_twice_expected = 0;
   for (const Run* r : runs) {
     row.peak_mb = std::max(row.peak_mb, r->peak_mb);
@@ -293,6 +295,7 @@ Row Summarise(const std::vector<const Run*>& runs, std::map<std::string, std::st
       per_iteration.push_back(r->stage_ms.at("register") / r->iterations);
     if (r->stage_ms.count("mls")) mls.push_back(r->stage_ms.at("mls"));
     if (r->total_ms > 0) total.push_back(r->total_ms);
+    if (r->method_error_m >= 0) method_error.push_back(r->method_error_m * 1e3);
     if (r->precision.valid) {
       expected_error.push_back(r->precision.expected_error_m * 1e3);
       within_twice_expected += r->add_m <= 2 * r->precision.expected_error_m;
@@ -316,6 +319,7 @@ Row Summarise(const std::vector<const Run*>& runs, std::map<std::string, std::st
   row.register_median_ms = Quantile(reg, 0.5), row.total_median_ms = Quantile(total, 0.5), row.mls_median_ms = Quantile(mls, 0.5);
   row.iteration_median_ms = Quantile(per_iteration, 0.5);
   row.mesh_error_median_mm = Quantile(mesh_error, 0.5);
+  row.method_error_median_mm = Quantile(method_error, 0.5);
   row.expected_error_median_mm = Quantile(expected_error, 0.5);
   if (!expected_error.empty())
     row.within_twice_expected = static_cast<double>(within_twice_expected) / static_cast<double>(expected_error.size());

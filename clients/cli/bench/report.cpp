@@ -56,6 +56,7 @@ const std::vector<Column>& RobustnessColumns() {
   static const std::vector<Column> kColumns = [] {
     std::vector<Column> c = StatColumns();
     c.push_back({"mesh error median mm", [](const Row& r) { return Num(r.mesh_error_median_mm); }});
+    c.push_back({"method error median mm", [](const Row& r) { return Num(r.method_error_median_mm); }});
     c.push_back({"success where mesh error < 5 mm",
                  [](const Row& r) { return r.mesh_good_runs ? Num(r.success_mesh_good * 100, 0) + " % of " + std::to_string(r.mesh_good_runs) : "-"; }});
     c.push_back({"expected error median mm", [](const Row& r) { return Num(r.expected_error_median_mm); }});
@@ -107,7 +108,7 @@ Status RunsCsv(const std::string& path, const std::vector<Run>& runs) {
   out << "experiment,method,size,params,scene,cell,seed,perturbation,seed_yaw_deg,offset_x,offset_y,offset_z,ok,status,"
          "rms_mm,add_mm,translation_mm,rotation_deg,crop_ms,sample_ms,mls_ms,register_ms,total_ms,peak_mb,iterations,error,"
          "mesh_error_mm,vertical_mm,horizontal_mm,steps,expected_error_mm,sigma_horizontal_mm,sigma_vertical_mm,"
-         "sigma_yaw_deg,fit_error_mm,map_error_mm,surface_error_mm,stages\n";
+         "sigma_yaw_deg,fit_error_mm,map_error_mm,surface_error_mm,stages,method_error_mm\n";
   auto stage = [](const Run& r, const char* s) { return r.stage_ms.count(s) ? Num(r.stage_ms.at(s), 1) : ""; };
   // Every stage and method step ("register/pose-search=12.3;..."), for per-step profiles.
   auto steps = [](const Run& r) {
@@ -123,13 +124,14 @@ Status RunsCsv(const std::string& path, const std::vector<Run>& runs) {
                        Num(p.fit_error_m * 1e3, 2), Num(p.map_error_m * 1e3, 2), Num(p.surface_error_m * 1e3, 2));
   };
   for (const auto& r : runs)
-    out << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", r.experiment, Csv(r.method),
+    out << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", r.experiment, Csv(r.method),
                        r.size, Csv(r.params), r.scene_kind, r.cell, r.seed, r.perturbation, r.seed_yaw_deg,
                        r.seed_offset_m.x(), r.seed_offset_m.y(), r.seed_offset_m.z(), r.ok ? 1 : 0, r.status, Num(r.rms_m * 1e3, 3),
                        Num(r.add_m * 1e3, 3), Num(r.translation_m * 1e3, 3), Num(r.rotation_deg, 3), stage(r, "crop"),
                        stage(r, "sample"), stage(r, "mls"), stage(r, "register"), Num(r.total_ms, 1), Num(r.peak_mb, 0),
                        r.iterations, Csv(r.error), r.mesh_error_m >= 0 ? Num(r.mesh_error_m * 1e3, 2) : "",
-                       Num(r.vertical_m * 1e3, 3), Num(r.horizontal_m * 1e3, 3), Csv(steps(r)), precision(r), Csv(r.stages));
+                       Num(r.vertical_m * 1e3, 3), Num(r.horizontal_m * 1e3, 3), Csv(steps(r)), precision(r), Csv(r.stages),
+                       r.method_error_m >= 0 ? Num(r.method_error_m * 1e3, 2) : "");
   return out ? Status::Ok() : Status::IoError("error writing " + path);
 }
 

@@ -181,6 +181,9 @@ struct SimulatedCell {
   // point to plane, where they put the robot's seen surface. What a fit against the true pose
   // cannot beat. -1 where not measured (a robot that cannot be posed).
   double mesh_error_add_m = -1.0;
+  // Where that motion put the base (world): the pose a fit that explains the mesh perfectly
+  // lands at, so a fit's ADD against it is the method's own error. None where not measured.
+  std::optional<Iso3> T_world_base_mesh;
 };
 
 Result<SimulatedCell> SimulateCell(const RobotModel& robot, const SimOptions& options,

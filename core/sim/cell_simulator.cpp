@@ -413,8 +413,9 @@ std::optional<MeshImprint> RobotImprint(const RobotModel& robot, const CellScene
 void SetMeshError(const MeshImprint& imprint, const std::function<Iso3(const Vec3&)>& T_moved_true_at,
                   SimulatedCell* cell) {
   const std::optional<Iso3> T_mesh_true = imprint.Motion(T_moved_true_at);
-  cell->mesh_error_add_m = imprint.Add(T_moved_true_at);
-  if (T_mesh_true) cell->T_world_base_mesh = *T_mesh_true * cell->T_world_base;
+  if (!T_mesh_true) return;  // too little of the robot seen: not measured
+  cell->mesh_error_add_m = imprint.AddOf(*T_mesh_true);
+  cell->T_world_base_mesh = *T_mesh_true * cell->T_world_base;
 }
 
 // The per-surface head-pose errors of the device's mesher at a world point (ErrorOfCube, the

@@ -57,9 +57,13 @@ std::optional<Iso3> MeshImprint::Motion(const std::function<Iso3(const Vec3&)>& 
 
 double MeshImprint::Add(const std::function<Iso3(const Vec3&)>& T_moved_true_at) const {
   const std::optional<Iso3> T = Motion(T_moved_true_at);
-  if (!T || robot_.points.empty()) return -1.0;
+  return T ? AddOf(*T) : -1.0;
+}
+
+double MeshImprint::AddOf(const Iso3& T_mesh_true) const {
+  if (robot_.points.empty()) return -1.0;
   double sum = 0;
-  for (const Vec3f& p : robot_.points) sum += (*T * p.cast<double>() - p.cast<double>()).norm();
+  for (const Vec3f& p : robot_.points) sum += (T_mesh_true * p.cast<double>() - p.cast<double>()).norm();
   return sum / static_cast<double>(robot_.points.size());
 }
 

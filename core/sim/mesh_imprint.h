@@ -35,6 +35,8 @@ class MeshImprint {
   double Add(const std::function<Iso3(const Vec3&)>& T_moved_true_at = {}) const;
   // That motion itself (world: the true robot to where the mesh put it); none with too few seen.
   std::optional<Iso3> Motion(const std::function<Iso3(const Vec3&)>& T_moved_true_at = {}) const;
+  // The ADD of a motion over all samples (Add of Motion); -1 without samples.
+  double AddOf(const Iso3& T_mesh_true) const;
 
   std::size_t seen() const;
 

@@ -55,11 +55,6 @@ std::optional<Iso3> MeshImprint::Motion(const std::function<Iso3(const Vec3&)>& 
               Eigen::Translation3d(-base_));
 }
 
-double MeshImprint::Add(const std::function<Iso3(const Vec3&)>& T_moved_true_at) const {
-  const std::optional<Iso3> T = Motion(T_moved_true_at);
-  return T ? AddOf(*T) : -1.0;
-}
-
 double MeshImprint::AddOf(const Iso3& T_mesh_true) const {
   if (robot_.points.empty()) return -1.0;
   double sum = 0;

@@ -28,14 +28,12 @@ class MeshImprint {
   void AddView(const PinholeCamera& camera, const Iso3& T_world_camera_true, const Iso3& T_world_camera_believed,
                const RangeImage& range, double tolerance_m);
 
-  // The ADD (mean over all samples) of the gravity-aligned rigid motion (x, y, z, yaw about the
-  // base) that best explains, point to plane as arref-icp fits, where the mesh put the samples
-  // that were seen: moved along their normal by the mean of their views' moves, then by
-  // `T_moved_true_at` (a surface's error at a world point; empty: none). -1 with too few seen.
-  double Add(const std::function<Iso3(const Vec3&)>& T_moved_true_at = {}) const;
-  // That motion itself (world: the true robot to where the mesh put it); none with too few seen.
+  // The gravity-aligned rigid motion (x, y, z, yaw about the base; world: the true robot to where
+  // the mesh put it) that best explains, point to plane as arref-icp fits, where the mesh put the
+  // samples that were seen: moved along their normal by the mean of their views' moves, then by
+  // `T_moved_true_at` (a surface's error at a world point; empty: none). None with too few seen.
   std::optional<Iso3> Motion(const std::function<Iso3(const Vec3&)>& T_moved_true_at = {}) const;
-  // The ADD of a motion over all samples (Add of Motion); -1 without samples.
+  // The ADD (mean over all samples) of such a motion: the mesh error; -1 without samples.
   double AddOf(const Iso3& T_mesh_true) const;
 
   std::size_t seen() const;

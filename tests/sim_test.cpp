@@ -12,6 +12,7 @@
 #include <set>
 #include <string>
 
+#include "arref/scene/metrics.h"
 #include "arref/scene/nearest_neighbor.h"
 #include "arref/fusion/raycaster.h"
 #include "arref/robot/robot_model.h"
@@ -680,10 +681,7 @@ TEST(CellSimulator, MeshErrorOfTheOwnMesherIsTheViewsTrackingError) {
   auto posed = BuiltinRobot().PosedMesh(jittered->joints);
   ASSERT_TRUE(posed.ok()) << posed.status().ToString();
   const PointCloud surface = SampleSurface(*posed, 5000, 3);
-  double add = 0;
-  for (const Vec3f& p : surface.points)
-    add += (mesh * p.cast<double>() - jittered->T_world_base * p.cast<double>()).norm();
-  add /= static_cast<double>(surface.size());
+  const double add = ComparePoses(mesh, jittered->T_world_base, surface.points).add_m;
   EXPECT_NEAR(add, jittered->mesh_error_add_m, 0.1 * jittered->mesh_error_add_m);
 }
 

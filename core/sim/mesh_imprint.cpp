@@ -4,6 +4,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include "arref/scene/metrics.h"
+
 namespace arref::sim::detail {
 
 MeshImprint::MeshImprint(PointCloud robot_world, const Vec3& base_world)
@@ -57,9 +59,7 @@ std::optional<Iso3> MeshImprint::Motion(const std::function<Iso3(const Vec3&)>& 
 
 double MeshImprint::AddOf(const Iso3& T_mesh_true) const {
   if (robot_.points.empty()) return -1.0;
-  double sum = 0;
-  for (const Vec3f& p : robot_.points) sum += (T_mesh_true * p.cast<double>() - p.cast<double>()).norm();
-  return sum / static_cast<double>(robot_.points.size());
+  return ComparePoses(T_mesh_true, Iso3::Identity(), robot_.points).add_m;
 }
 
 }  // namespace arref::sim::detail

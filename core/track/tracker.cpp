@@ -399,8 +399,10 @@ Measurement Tracker::Impl::Measure(const DepthFrame& f, const Iso3& T0, const st
   m.covariance = Covariance(source, target, m.T_world_base.inverse());
   // ICP's covariance counts every depth point near a model point, an occluder's too; when only
   // a share of the visible model agrees with the depth, the robot's own pixels are that much
-  // fewer, and a fit on them (on the robot's few unhidden pixels) is that much less certain.
-  if (!Wraps(f)) m.covariance /= std::max(m.coverage, settings.min_covariance_coverage);
+  // fewer, and a fit on them is less certain than that count says
+  // (TrackerSettings::covariance_coverage_power).
+  if (!Wraps(f))
+    m.covariance /= std::pow(std::max(m.coverage, settings.min_covariance_coverage), settings.covariance_coverage_power);
   m.fits = m.support >= settings.min_agreement;
   out->icp_ms += lap.Lap();
   return m;

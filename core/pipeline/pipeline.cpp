@@ -12,6 +12,7 @@
 #include "arref/baselines/baselines.h"
 #endif
 #include "arref/scene/metrics.h"
+#include "arref/scene/sampling.h"
 #include "arref/fusion/model_reconstruction.h"
 #include "arref/fusion/model_visibility.h"
 #include "arref/scene/nearest_neighbor.h"
@@ -115,19 +116,14 @@ void AssignStatus(const ConfidenceThresholds& t, bool calibrated, const std::str
     r->status = r->inlier_fraction < t.failed_below_inlier_fraction ? ResultStatus::kFailed : ResultStatus::kLowConfidence;
 }
 
-// The fit's precision over at most kPrecisionPoints of the visible model (every k-th: the
+// The fit's precision over at most kPrecisionPoints of the visible model (Thinned: the
 // covariance needs the surface's spread, not every sample). The mesh's edge is the length over
 // which its residuals are correlated.
 FitPrecision Precision(const PointCloud& visible, const TargetCloud& target, const Iso3& T_world_base,
                        const RegistrationOutput& method, const RegistrationOptions& options, double edge_m) {
   constexpr std::size_t kPrecisionPoints = 4000;
-  const std::size_t step = std::max<std::size_t>(1, visible.size() / kPrecisionPoints);
-  std::vector<Vec3f> points, normals;
-  for (std::size_t i = 0; i < visible.size(); i += step) {
-    points.push_back(visible.points[i]);
-    if (visible.has_normals()) normals.push_back(visible.normals[i]);
-  }
-  return MeasurePrecision(points, normals, target, T_world_base, method.eyes_world,
+  const PointCloud kept = Thinned(visible, kPrecisionPoints);
+  return MeasurePrecision(kept.points, kept.normals, target, T_world_base, method.eyes_world,
                           method.has_other_surface ? &method.T_world_base_other_surface : nullptr,
                           PrecisionSettings{.max_distance_m = options.inlier_threshold_m,
                                             .correlation_m = edge_m,

@@ -325,6 +325,10 @@ StreamOutcome AhatDevStream(const std::string& urdf, std::uint64_t seed) {
   return BenchStream(urdf, seed, sim::FrameKind::kAhat);
 }
 
+StreamOutcome LongThrowDevStream(const std::string& urdf, std::uint64_t seed) {
+  return BenchStream(urdf, seed, sim::FrameKind::kLongThrow);
+}
+
 // The MH5's dev stream 3 in AHAT frames (the bench's simulator seed): from 3.8 s the arm is half
 // to wholly hidden behind a prop, its true pose agreeing with every pixel it shows but covering
 // 0.02-0.47 of its visible model. Poses 0.2-0.3 m off laid on the prop covered 0.6-0.8 and
@@ -356,8 +360,7 @@ TEST(Tracker, TakesTheCameraViewOfAnArmHiddenByANearOccluder) {
 // filter pose now holds in long-throw frames as in AHAT ones.
 TEST(Tracker, HoldsAnArmWhollyHiddenInLongThrowDepth) {
   ARREF_REQUIRE_SHARED();
-  const StreamOutcome o =
-      BenchStream("motoman_sia10d_support/urdf/sia10d.urdf", 13399427928172894881ull, sim::FrameKind::kLongThrow);
+  const StreamOutcome o = LongThrowDevStream("motoman_sia10d_support/urdf/sia10d.urdf", 13399427928172894881ull);
   ExpectTracked(o, 250, 0.9);
 }
 
@@ -368,8 +371,7 @@ TEST(Tracker, HoldsAnArmWhollyHiddenInLongThrowDepth) {
 // pending the camera's view now challenges the filter on every frame and wins ties.
 TEST(Tracker, LeavesAStalePoseThatStillAgreesAfterAJump) {
   ARREF_REQUIRE_SHARED();
-  const StreamOutcome o =
-      BenchStream("motoman_mh5_support/urdf/mh5.urdf", 14529820317515863789ull, sim::FrameKind::kLongThrow);
+  const StreamOutcome o = LongThrowDevStream("motoman_mh5_support/urdf/mh5.urdf", 14529820317515863789ull);
   ExpectTracked(o, 250, 0.95, 1.0);
 }
 
@@ -415,8 +417,7 @@ TEST(Tracker, TakesNoViewThatSlidOffHeadTrackingsGuess) {
 // within 10 mm. A fit now weighs with the cube of its coverage, not the coverage alone.
 TEST(Tracker, FitsOnAPartlyHiddenArmWeighLess) {
   ARREF_REQUIRE_SHARED();
-  const StreamOutcome o =
-      BenchStream("motoman_sia10d_support/urdf/sia10d.urdf", 4053243156926358166ull, sim::FrameKind::kLongThrow);
+  const StreamOutcome o = LongThrowDevStream("motoman_sia10d_support/urdf/sia10d.urdf", 4053243156926358166ull);
   ExpectTracked(o, 250, 0.93, 1.0);
 }
 

@@ -410,23 +410,6 @@ TEST(Tracker, TakesNoViewThatSlidOffHeadTrackingsGuess) {
   ExpectTracked(o, 400, 0.9, 2.0);
 }
 
-// The MH5's AHAT stream 0 of the held-back --rng-seed 25 (the bench's simulator seed; a
-// development stream since that look). The first acquisition took a pose turned 15.6 degrees
-// (ADD 37 mm); the fits from it then fell, frame by frame, either back into that basin (covering
-// 0.70 of the arm) or onto the right pose (0.94-0.96), which the gate rejected. Neither showed a
-// pixel seen through, and a pose had to be seen through strictly less than the filter's to
-// count as clearly better, so the filter sat 32 mm off for 6 s (177 of 495 frames within 10 mm).
-// The filter's own fit is held to a tie only, and three such fits in a row replace the first
-// pose: the one re-reference before the world's jump that this stream may make.
-TEST(Tracker, ReplacesAFirstPoseTurnedAwayByItsOwnBetterFits) {
-  ARREF_REQUIRE_SHARED();
-  const StreamOutcome o = AhatDevStream("motoman_mh5_support/urdf/mh5.urdf", 4755577473737113684ull);
-  ASSERT_GT(o.scored, 400);
-  EXPECT_LE(o.rereferences_before_jump, 1);
-  EXPECT_GE(o.recovery_s, 0.0) << "never recovered from the jump";
-  EXPECT_GE(o.within_10mm, 0.8 * o.scored) << o.within_10mm << " of " << o.scored;
-}
-
 // The SIA10D's long-throw stream 1 of the held-back --rng-seed 19 (the bench's simulator seed; a
 // development stream since that look). From 7 s props hide 50-80 % of the arm; the fits on its
 // unhidden part sat 10-30 mm off towards the camera frame after frame, and those fused while a

@@ -196,7 +196,7 @@ struct Tracker::Impl {
   TrackResult Reacquire(Step& st);
   // ... and what those share.
   bool InGate(const Step& st, const Measurement& x) const;
-  bool ClearlyBetter(const Step& st, const Measurement& x, bool jump_view = false, bool filter_fit = false) const;
+  bool ClearlyBetter(const Step& st, const Measurement& x, bool jump_view = false) const;
   bool AtLeastAsGood(const Step& st, const Measurement& x) const;
   void StartCandidate(const Step& st, const Measurement& x, Bar bar, std::string_view how);
   std::optional<TrackResult> Found(Step& st, const Measurement& x, std::string_view how, bool jump_view = false);
@@ -600,7 +600,7 @@ bool Tracker::Impl::InGate(const Step& st, const Measurement& x) const {
   return x.fits && filter.Mahalanobis2(PoseToState(x.T_world_base), x.covariance, st.frame.time_s) <= settings.filter.gate_chi2;
 }
 
-bool Tracker::Impl::ClearlyBetter(const Step& st, const Measurement& x, bool jump_view, bool filter_fit) const {
+bool Tracker::Impl::ClearlyBetter(const Step& st, const Measurement& x, bool jump_view) const {
   if (!Reacquires(x, jump_view)) return false;
   if (Wraps(st.frame)) {
     // Coverage counts occluded pixels against a pose, so a pose found by search wins wherever
@@ -612,13 +612,8 @@ bool Tracker::Impl::ClearlyBetter(const Step& st, const Measurement& x, bool jum
     // already has: the filter's; strictly less once a fit has been fused since the filter's
     // last (re)start (a pose only a re-reference gave, such as a camera's view 10 cm off in
     // the built-in robot's dev stream 1, keeps no such tie); and at a pending jump strictly
-    // less than the camera's view (head tracking's guess, 1 when hidden). The filter's own fit
-    // is held to a tie only: ICP from the filter's pose ends within its reach, never on a prop
-    // 0.2 m away, and held to strictly less it could not replace a first pose turned 15 degrees
-    // that nothing saw through either (held-back draw 25's MH5 stream 0: its right fits covered
-    // 0.94-0.96 against 0.70, and 177 of 495 frames lay within 10 mm).
-    const bool strict = fused && !filter_fit;
-    const bool beats_filter = strict ? x.agreement > st.explained_agreement : x.agreement >= st.explained_agreement;
+    // less than the camera's view (head tracking's guess, 1 when hidden).
+    const bool beats_filter = fused ? x.agreement > st.explained_agreement : x.agreement >= st.explained_agreement;
     if (!jump_view && !st.jump_pending && !beats_filter) return false;
     if (!jump_view && st.jump_view_agreement && !(x.agreement > *st.jump_view_agreement)) return false;
     // The camera's view at a jump is compared on its readable coverage, as its bar (Reacquires).
@@ -737,8 +732,7 @@ TrackResult Tracker::Impl::TakeFit(Step& st) {
       m.support < m.start_support - settings.max_fit_support_drop || m.coverage < settings.min_fuse_coverage;
   if (!Wraps(st.frame) && untrusted && InGate(st, m)) return Finish(st, TrackState::kTracking);
   // Rejected measurements become a world jump only while they explain the frames clearly better.
-  const FilterVerdict v = filter.Update(PoseToState(m.T_world_base), m.covariance, st.frame.time_s,
-                                        ClearlyBetter(st, m, /*jump_view=*/false, /*filter_fit=*/true));
+  const FilterVerdict v = filter.Update(PoseToState(m.T_world_base), m.covariance, st.frame.time_s, ClearlyBetter(st, m));
   fused = v == FilterVerdict::kAccepted || (fused && v == FilterVerdict::kRejected);
   return Finish(st, v == FilterVerdict::kRejected ? TrackState::kRejected
                     : v == FilterVerdict::kJump   ? TrackState::kJump

@@ -82,7 +82,8 @@ struct TrackerSettings {
   // Frames with a lost fit before re-acquisition when the camera has not jumped (one lost frame
   // may be a hand in front of the sensor).
   int lost_frames_before_search = 1;
-  // The grid search: positions round each guess, yaws round its heading.
+  // The grid search: positions round each guess, yaws round its heading. The first frame after a
+  // seed fits from the seed's heading turned by the same yaw steps too, and keeps the best.
   double search_step_m = 0.2;
   int search_steps = 2;           // (2 steps + 1)^2 positions
   double search_yaw_step_deg = 10.0;

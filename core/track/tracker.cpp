@@ -194,6 +194,7 @@ struct Tracker::Impl {
   void ChallengeWithJumpView(Step& st);
   TrackResult TakeFit(Step& st);
   TrackResult Acquire(Step& st);
+  bool FusePartlySeen(Step& st);
   TrackResult Reacquire(Step& st);
   // ... and what those share.
   bool InGate(const Step& st, const Measurement& x) const;
@@ -736,6 +737,32 @@ TrackResult Tracker::Impl::TakeFit(Step& st) {
                                                   : TrackState::kTracking);
 }
 
+// In a wrapped frame a fit's support is its coverage, and an arm half behind props (or half in
+// depth the wrap makes ambiguous) covers under min_agreement however right the fit: held-back
+// draw 25's SIA10D AHAT stream 1 after its jump, 5 s of fits agreeing 1.00 on 74-80 % of their
+// readable pixels but covering 0.46-0.51, all dropped, while the wearer's world drifted the held
+// pose from 9 to 13 mm off (439 of 495 frames within 10 mm). Such a fit from the filter's pose,
+// within its gate and not slid, is fused as long-throw fits are, weighing with the cube of its
+// coverage; but it is no fit that confirms the pose (`fused` stays as it was) and the tracker
+// stays lost and searches on: the built-in robot's dev stream 1 held a pose 99 mm off, laid on
+// half the arm, which only a search could replace (457 of 495 frames with this, 225 when such
+// fits counted as tracking). Slid: fits turned 23 deg, still agreeing on the MH5's unhidden half,
+// walked its dev stream 1 from 7 to 11 mm off.
+bool Tracker::Impl::FusePartlySeen(Step& st) {
+  const Measurement& m = st.m;
+  const TrackerSettings& s = settings;
+  if (!Wraps(st.frame) || !st.tracking || st.jump_pending) return false;
+  if (m.agreement < s.min_reacquire_agreement || m.readable < s.min_agreement || m.coverage < s.min_fuse_coverage ||
+      m.support < m.start_support - s.max_fit_support_drop || Slid(m))
+    return false;
+  const Mat4 R = m.covariance / std::pow(m.coverage, s.covariance_coverage_power);
+  const Vec4 z = PoseToState(m.T_world_base);
+  if (filter.Mahalanobis2(z, R, st.frame.time_s) > s.filter.gate_chi2) return false;
+  if (filter.Update(z, R, st.frame.time_s, false) != FilterVerdict::kAccepted) return false;
+  st.out.T_world_base_measured = m.T_world_base;
+  return true;
+}
+
 // The first fit: the best of the seed's and of its heading turned by the search's yaw steps.
 // From a seed 4 deg off, the wide distances took the MH5 (a small arm, in AHAT frames) 15.6 deg
 // round into a basin that covered 0.70 of its pixels against the right pose's 0.95, and no fit
@@ -840,6 +867,7 @@ Result<TrackResult> Tracker::Process(const DepthFrame& reported, const JointValu
   if (!m.fits && st.tracking && !st.jumped && (m.start_support >= s.min_reacquire_agreement || st.hidden))
     return I.Finish(st, TrackState::kTracking);
   if (m.fits) return I.TakeFit(st);
+  I.FusePartlySeen(st);  // fused or not, the tracker is lost and searches on
   return I.Reacquire(st);
 }
 

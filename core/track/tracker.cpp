@@ -185,6 +185,11 @@ struct Tracker::Impl {
     return moved_m > 2 * settings.icp_distances_m.front() || turned > settings.search_yaw_step_deg * kDegree;
   }
   Mat4 Covariance(const PointCloud& source, const TargetCloud& target, const Iso3& T_base_world) const;
+  // A fit covering a share of the visible model weighs with that share to a power
+  // (TrackerSettings::covariance_coverage_power).
+  Mat4 CoverageWeighted(const Mat4& covariance, double coverage) const {
+    return covariance / std::pow(std::max(coverage, settings.min_covariance_coverage), settings.covariance_coverage_power);
+  }
   std::optional<Iso3> GridSearch(const DepthFrame& f, const std::vector<Iso3>& guesses, TrackResult* out) const;
 
   // Process, in the order it runs them on a frame.
@@ -194,7 +199,7 @@ struct Tracker::Impl {
   void ChallengeWithJumpView(Step& st);
   TrackResult TakeFit(Step& st);
   TrackResult Acquire(Step& st);
-  bool FusePartlySeen(Step& st);
+  void FusePartlySeen(Step& st);
   TrackResult Reacquire(Step& st);
   // ... and what those share.
   bool InGate(const Step& st, const Measurement& x) const;
@@ -403,8 +408,7 @@ Measurement Tracker::Impl::Measure(const DepthFrame& f, const Iso3& T0, const st
   // a share of the visible model agrees with the depth, the robot's own pixels are that much
   // fewer, and a fit on them is less certain than that count says
   // (TrackerSettings::covariance_coverage_power).
-  if (!Wraps(f))
-    m.covariance /= std::pow(std::max(m.coverage, settings.min_covariance_coverage), settings.covariance_coverage_power);
+  if (!Wraps(f)) m.covariance = CoverageWeighted(m.covariance, m.coverage);
   m.fits = m.support >= settings.min_agreement;
   out->icp_ms += lap.Lap();
   return m;
@@ -748,19 +752,17 @@ TrackResult Tracker::Impl::TakeFit(Step& st) {
 // half the arm, which only a search could replace (457 of 495 frames with this, 225 when such
 // fits counted as tracking). Slid: fits turned 23 deg, still agreeing on the MH5's unhidden half,
 // walked its dev stream 1 from 7 to 11 mm off.
-bool Tracker::Impl::FusePartlySeen(Step& st) {
+void Tracker::Impl::FusePartlySeen(Step& st) {
   const Measurement& m = st.m;
   const TrackerSettings& s = settings;
-  if (!Wraps(st.frame) || !st.tracking || st.jump_pending) return false;
+  if (!Wraps(st.frame) || !st.tracking || st.jump_pending) return;
   if (m.agreement < s.min_reacquire_agreement || m.readable < s.min_agreement || m.coverage < s.min_fuse_coverage ||
       m.support < m.start_support - s.max_fit_support_drop || Slid(m))
-    return false;
-  const Mat4 R = m.covariance / std::pow(m.coverage, s.covariance_coverage_power);
+    return;
+  const Mat4 R = CoverageWeighted(m.covariance, m.coverage);
   const Vec4 z = PoseToState(m.T_world_base);
-  if (filter.Mahalanobis2(z, R, st.frame.time_s) > s.filter.gate_chi2) return false;
-  if (filter.Update(z, R, st.frame.time_s, false) != FilterVerdict::kAccepted) return false;
-  st.out.T_world_base_measured = m.T_world_base;
-  return true;
+  if (filter.Mahalanobis2(z, R, st.frame.time_s) > s.filter.gate_chi2) return;
+  if (filter.Update(z, R, st.frame.time_s, false) == FilterVerdict::kAccepted) st.out.T_world_base_measured = m.T_world_base;
 }
 
 // The first fit: the best of the seed's and of its heading turned by the search's yaw steps.

@@ -747,22 +747,23 @@ TrackResult Tracker::Impl::TakeFit(Step& st) {
 // readable pixels but covering 0.46-0.51, all dropped, while the wearer's world drifted the held
 // pose from 9 to 13 mm off (439 of 495 frames within 10 mm). Such a fit from the filter's pose,
 // within its gate and not slid, is fused as long-throw fits are, weighing with the cube of its
-// coverage; but it is no fit that confirms the pose (`fused` stays as it was) and the tracker
-// stays lost and searches on: the built-in robot's dev stream 1 held a pose 99 mm off, laid on
-// half the arm, which only a search could replace (457 of 495 frames with this, 225 when such
-// fits counted as tracking). Slid: fits turned 23 deg, still agreeing on the MH5's unhidden half,
-// walked its dev stream 1 from 7 to 11 mm off.
+// coverage, and confirms the pose (`fused`: a search pose must then be seen through strictly
+// less); the tracker stays lost meanwhile and searches on. Slid: fits turned 23 deg, agreeing
+// on the MH5's unhidden half, walked its dev stream 1 from 7 to 11 mm off. Readable share:
+// min_partial_fit_readable (TrackerSettings) says why it is not the fit bar's 0.6.
 void Tracker::Impl::FusePartlySeen(Step& st) {
   const Measurement& m = st.m;
   const TrackerSettings& s = settings;
   if (!Wraps(st.frame) || !st.tracking || st.jump_pending) return;
-  if (m.agreement < s.min_reacquire_agreement || m.readable < s.min_agreement || m.coverage < s.min_fuse_coverage ||
-      m.support < m.start_support - s.max_fit_support_drop || Slid(m))
+  if (m.agreement < s.min_reacquire_agreement || m.readable < s.min_partial_fit_readable ||
+      m.coverage < s.min_fuse_coverage || m.support < m.start_support - s.max_fit_support_drop || Slid(m))
     return;
   const Mat4 R = CoverageWeighted(m.covariance, m.coverage);
   const Vec4 z = PoseToState(m.T_world_base);
   if (filter.Mahalanobis2(z, R, st.frame.time_s) > s.filter.gate_chi2) return;
-  if (filter.Update(z, R, st.frame.time_s, false) == FilterVerdict::kAccepted) st.out.T_world_base_measured = m.T_world_base;
+  if (filter.Update(z, R, st.frame.time_s, false) != FilterVerdict::kAccepted) return;
+  st.out.T_world_base_measured = m.T_world_base;
+  fused = true;
 }
 
 // The first fit: the best of the seed's and of its heading turned by the search's yaw steps.

@@ -203,6 +203,7 @@ struct Tracker::Impl {
   TrackResult Reacquire(Step& st);
   // ... and what those share.
   bool InGate(const Step& st, const Measurement& x) const;
+  bool InGate(const Step& st, const Vec4& z, const Mat4& R) const;
   bool ClearlyBetter(const Step& st, const Measurement& x, bool jump_view = false) const;
   bool AtLeastAsGood(const Step& st, const Measurement& x) const;
   void StartCandidate(const Step& st, const Measurement& x, Bar bar, std::string_view how);
@@ -603,7 +604,11 @@ void Tracker::Impl::ExplainByFilter(Step& st) {
 }
 
 bool Tracker::Impl::InGate(const Step& st, const Measurement& x) const {
-  return x.fits && filter.Mahalanobis2(PoseToState(x.T_world_base), x.covariance, st.frame.time_s) <= settings.filter.gate_chi2;
+  return x.fits && InGate(st, PoseToState(x.T_world_base), x.covariance);
+}
+
+bool Tracker::Impl::InGate(const Step& st, const Vec4& z, const Mat4& R) const {
+  return filter.Mahalanobis2(z, R, st.frame.time_s) <= settings.filter.gate_chi2;
 }
 
 bool Tracker::Impl::ClearlyBetter(const Step& st, const Measurement& x, bool jump_view) const {
@@ -760,8 +765,7 @@ void Tracker::Impl::FusePartlySeen(Step& st) {
     return;
   const Mat4 R = CoverageWeighted(m.covariance, m.coverage);
   const Vec4 z = PoseToState(m.T_world_base);
-  if (filter.Mahalanobis2(z, R, st.frame.time_s) > s.filter.gate_chi2) return;
-  if (filter.Update(z, R, st.frame.time_s, false) != FilterVerdict::kAccepted) return;
+  if (!InGate(st, z, R) || filter.Update(z, R, st.frame.time_s, false) != FilterVerdict::kAccepted) return;
   st.out.T_world_base_measured = m.T_world_base;
   fused = true;
 }

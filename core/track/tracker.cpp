@@ -788,7 +788,7 @@ TrackResult Tracker::Impl::Acquire(Step& st) {
     if (x.fits && Reacquires(x) && (!Reacquires(best) || x.support > best.support)) best = x;
   }
   st.out.T_world_base_measured = best.T_world_base;
-  if (!best.fits || !Reacquires(best)) return Finish(st, TrackState::kLost);
+  if (!Reacquires(best)) return Finish(st, TrackState::kLost);  // best fits: the first fit did (TakeFit)
   seed.reset();
   return Restart(st, best);
 }

@@ -33,6 +33,11 @@ TriangleMesh Box(float sx, float sy, float sz) {
   return m;
 }
 
+// Surface points whose normal faces along sign * x (within about 25 deg).
+std::ptrdiff_t FacingX(const PointCloud& c, float sign) {
+  return std::count_if(c.normals.begin(), c.normals.end(), [&](const Vec3f& n) { return sign * n.x() > 0.9f; });
+}
+
 // Signed distance to an axis-aligned box [-h, h] x [-h, h] x [0, z] (positive outside).
 double BoxDistance(const Vec3f& p, double hx, double hy, double z) {
   const Eigen::Vector3d q(std::abs(p.x()) - hx, std::abs(p.y()) - hy, std::abs(p.z() - z / 2) - z / 2);
@@ -76,11 +81,8 @@ TEST(ExpectedSurface, OneSidedWalkLeavesTheFarSideOut) {
   o.arc_deg = 120, o.arc_center_deg = 0;  // walked in front of +x only
   auto front = ExpectedRobotSurface(Box(0.4f, 0.4f, 0.8f), o, 4000, 1);
   ASSERT_TRUE(round.ok() && front.ok());
-  auto facing_back = [](const PointCloud& c) {
-    return std::count_if(c.normals.begin(), c.normals.end(), [](const Vec3f& n) { return n.x() < -0.9f; });
-  };
-  EXPECT_GT(facing_back(*round), 400);  // a fifth of the side area faces -x
-  EXPECT_LT(facing_back(*front), 40);
+  EXPECT_GT(FacingX(*round, -1), 400);  // a fifth of the side area faces -x
+  EXPECT_LT(FacingX(*front, -1), 40);
 }
 
 TEST(ExpectedSurface, BadOptionsNameTheProblem) {
@@ -153,13 +155,10 @@ TEST(ExpectedSurface, GivenEyesReplaceTheArc) {
   for (auto& eye : given.eyes_base) eye[0] = -eye[0];
   auto from_back = maker->Make(given, 3000);
   ASSERT_TRUE(from_back.ok()) << from_back.status().ToString();
-  auto facing = [](const PointCloud& c, float sign) {
-    return std::count_if(c.normals.begin(), c.normals.end(), [&](const Vec3f& n) { return sign * n.x() > 0.9f; });
-  };
-  EXPECT_GT(facing(*from_arc, 1), 300);
-  EXPECT_GT(facing(*from_arc, 1), 8 * facing(*from_arc, -1));
-  EXPECT_GT(facing(*from_back, -1), 300);
-  EXPECT_GT(facing(*from_back, -1), 8 * facing(*from_back, 1));
+  EXPECT_GT(FacingX(*from_arc, 1), 300);
+  EXPECT_GT(FacingX(*from_arc, 1), 8 * FacingX(*from_arc, -1));
+  EXPECT_GT(FacingX(*from_back, -1), 300);
+  EXPECT_GT(FacingX(*from_back, -1), 8 * FacingX(*from_back, 1));
 }
 
 // A table top (0.04 m thick, 0.5 m high) between a walker on the +x side and a box robot.

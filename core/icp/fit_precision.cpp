@@ -44,19 +44,22 @@ double PointError(std::span<const Vec3f> model_base, const Iso3& T_world_base, c
 // out, it would pin the pose as if it had no error at all).
 Eigen::Matrix4d MapCovariance(const std::vector<Pair>& pairs, const Eigen::Matrix4d& H_inv,
                               std::span<const Vec3> eyes, const TrackingError& error) {
-  std::vector<int> facing(pairs.size(), 0);
-  for (std::size_t i = 0; i < pairs.size(); ++i)
-    for (const Vec3& eye : eyes) facing[i] += pairs[i].n.dot(eye - pairs[i].p) > 0;
+  // faces[k * n + i]: eye k faces point i; facing[i]: how many eyes do. Tested once per pair.
+  const std::size_t n = pairs.size();
+  std::vector<char> faces(eyes.size() * n);
+  std::vector<int> facing(n, 0);
+  for (std::size_t k = 0; k < eyes.size(); ++k)
+    for (std::size_t i = 0; i < n; ++i) facing[i] += faces[k * n + i] = pairs[i].n.dot(eyes[k] - pairs[i].p) > 0;
   Vec6d S;
   const double s_t = error.position_m, s_w = error.orientation_deg * std::numbers::pi / 180.0;
   S << s_t * s_t, s_t * s_t, s_t * s_t, s_w * s_w, s_w * s_w, s_w * s_w;
   Eigen::Matrix4d C = Eigen::Matrix4d::Zero();
-  for (const Vec3& eye : eyes) {
+  for (std::size_t k = 0; k < eyes.size(); ++k) {
+    const Vec3& eye = eyes[k];
     Eigen::Matrix<double, 4, 6> M = Eigen::Matrix<double, 4, 6>::Zero();
-    for (std::size_t i = 0; i < pairs.size(); ++i) {
+    for (std::size_t i = 0; i < n; ++i) {
       const Pair& q = pairs[i];
-      const bool faces = q.n.dot(eye - q.p) > 0;
-      if (facing[i] > 0 && !faces) continue;
+      if (facing[i] > 0 && !faces[k * n + i]) continue;
       Vec6d g;
       g << q.n, (q.p - eye).cross(q.n);
       M += q.J * g.transpose() / static_cast<double>(facing[i] > 0 ? facing[i] : std::ssize(eyes));

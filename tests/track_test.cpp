@@ -441,8 +441,7 @@ TEST(Tracker, AcquiresTheBestHeadingRoundTheFirstGuess) {
 // them) but covered under 0.6 of the arm, so none was fused, and the held pose drifted with the
 // wearer's world to 13 mm off (439 of 495 frames within 10 mm). Such fits are now fused, weighing
 // with the cube of their coverage, while the tracker stays lost and searches on: 493. (The
-// built-in robot's dev AHAT stream 1, a pose 99 mm off that such fits must not confirm, is
-// checked by the bench's dev rows: docs/tracking.md.)
+// pose such fits must not confirm: ConfirmsNoPoseLaidOnHalfTheArmInWrappedDepth.)
 TEST(Tracker, FusesFitsOnAHalfHiddenArmInWrappedDepth) {
   ARREF_REQUIRE_SHARED();
   const StreamOutcome o = AhatDevStream("motoman_sia10d_support/urdf/sia10d.urdf", 930861468559918041ull);

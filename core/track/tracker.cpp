@@ -184,6 +184,11 @@ struct Tracker::Impl {
     const double turned = std::abs(YawOf(m.T_world_base_start.inverse() * m.T_world_base));
     return moved_m > 2 * settings.icp_distances_m.front() || turned > settings.search_yaw_step_deg * kDegree;
   }
+  // A fit explaining the frame clearly worse than its start (pulled off by depth that is not the
+  // robot), or covering too little of the visible model to constrain every direction: not fused.
+  bool Untrusted(const Measurement& m) const {
+    return m.support < m.start_support - settings.max_fit_support_drop || m.coverage < settings.min_fuse_coverage;
+  }
   Mat4 Covariance(const PointCloud& source, const TargetCloud& target, const Iso3& T_base_world) const;
   // A fit covering a share of the visible model weighs with that share to a power
   // (TrackerSettings::covariance_coverage_power).
@@ -735,9 +740,7 @@ TrackResult Tracker::Impl::TakeFit(Step& st) {
   // (max_fit_support_drop). And one on a few unhidden pixels errs the same way frame after
   // frame (min_fuse_coverage). Outside the gate nothing changes: such a fit is no evidence of
   // a jump either (not clearly better: worse than its start, or covering too little).
-  const bool untrusted =
-      m.support < m.start_support - settings.max_fit_support_drop || m.coverage < settings.min_fuse_coverage;
-  if (!Wraps(st.frame) && untrusted && InGate(st, m)) return Finish(st, TrackState::kTracking);
+  if (!Wraps(st.frame) && Untrusted(m) && InGate(st, m)) return Finish(st, TrackState::kTracking);
   // Rejected measurements become a world jump only while they explain the frames clearly better.
   const FilterVerdict v = filter.Update(PoseToState(m.T_world_base), m.covariance, st.frame.time_s, ClearlyBetter(st, m));
   fused = v == FilterVerdict::kAccepted || (fused && v == FilterVerdict::kRejected);
@@ -760,8 +763,7 @@ void Tracker::Impl::FusePartlySeen(Step& st) {
   const Measurement& m = st.m;
   const TrackerSettings& s = settings;
   if (!Wraps(st.frame) || !st.tracking || st.jump_pending) return;
-  if (m.agreement < s.min_reacquire_agreement || m.readable < s.min_partial_fit_readable ||
-      m.coverage < s.min_fuse_coverage || m.support < m.start_support - s.max_fit_support_drop || Slid(m))
+  if (m.agreement < s.min_reacquire_agreement || m.readable < s.min_partial_fit_readable || Untrusted(m) || Slid(m))
     return;
   const Mat4 R = CoverageWeighted(m.covariance, m.coverage);
   const Vec4 z = PoseToState(m.T_world_base);

@@ -758,12 +758,14 @@ TrackResult Tracker::Impl::TakeFit(Step& st) {
 // coverage, and confirms the pose (`fused`: a search pose must then be seen through strictly
 // less); the tracker stays lost meanwhile and searches on. Slid: fits turned 23 deg, agreeing
 // on the MH5's unhidden half, walked its dev stream 1 from 7 to 11 mm off. Readable share:
-// min_partial_fit_readable (TrackerSettings) says why it is not the fit bar's 0.6.
+// min_partial_fit_readable (TrackerSettings) says why it is not the fit bar's 0.6, and
+// min_partial_fit_coverage why such a fit must cover more than a long-throw fit.
 void Tracker::Impl::FusePartlySeen(Step& st) {
   const Measurement& m = st.m;
   const TrackerSettings& s = settings;
   if (!Wraps(st.frame) || !st.tracking || st.jump_pending) return;
-  if (m.agreement < s.min_reacquire_agreement || m.readable < s.min_partial_fit_readable || Untrusted(m) || Slid(m))
+  if (m.agreement < s.min_reacquire_agreement || m.readable < s.min_partial_fit_readable ||
+      m.coverage < s.min_partial_fit_coverage || Untrusted(m) || Slid(m))
     return;
   const Mat4 R = CoverageWeighted(m.covariance, m.coverage);
   const Vec4 z = PoseToState(m.T_world_base);

@@ -79,8 +79,8 @@ struct TrackerSettings {
   // from 8 to 14 mm), which dividing their covariance by the coverage did not stop.
   double min_fuse_coverage = 0.3;
   // In wrapped frames a fit covering under min_agreement (an arm half hidden, or half in depth the
-  // wrap makes ambiguous) is still fused when it agrees, covers min_fuse_coverage and reads at
-  // least this share of its readable pixels (ambiguous ones left out). At 0.6 the built-in robot's
+  // wrap makes ambiguous) is still fused when it agrees, covers min_partial_fit_coverage and
+  // reads at least this share of its readable pixels (ambiguous ones left out). At 0.6 the built-in robot's
   // dev AHAT stream 1 kept a pose 99 mm off, laid on half the arm (readable 0.57-0.60), which such
   // fits confirmed: 225 of 495 frames within 10 mm; right fits read 0.73-0.84 in the streams traced
   // (docs/tracking.md, "Fits on a half-hidden arm in wrapped depth").

@@ -769,6 +769,8 @@ void Tracker::Impl::FusePartlySeen(Step& st) {
     return;
   const Mat4 R = CoverageWeighted(m.covariance, m.coverage);
   const Vec4 z = PoseToState(m.T_world_base);
+  // The gate first, though Update gates too: a rejected update that is no jump evidence ends the
+  // filter's run of rejected measurements, and a fit that is not even a fit must not end a jump's.
   if (!InGate(st, z, R) || filter.Update(z, R, st.frame.time_s, false) != FilterVerdict::kAccepted) return;
   st.out.T_world_base_measured = m.T_world_base;
   fused = true;

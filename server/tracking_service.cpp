@@ -254,6 +254,7 @@ void TrackingService::Process(Track& t, Pending job) {
     u->set_frames_processed(processed);
     u->set_frames_dropped(dropped);
     u->set_agreement(r->agreement);
+    u->set_depth_noise(r->depth_noise_fraction);
     u->set_latency_ms(MsSince(job.received));
   }
   const auto frame = wire::SharedFrame(message);

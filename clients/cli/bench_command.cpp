@@ -264,6 +264,9 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
   cmd->add_option("--track-flying-pixels", args->track.flying_pixel_rate,
                   "Track: share of the pixels on depth edges that return a depth between the edge's sides (0: none)")
       ->check(CLI::Range(0.0, 1.0))->capture_default_str();
+  cmd->add_option("--track-depth-noise", args->track.depth_noise_fraction,
+                  "Track: depth noise sigma as a fraction of range (0: the frame kind's own, 0.01 long-throw, 0.003 AHAT)")
+      ->check(CLI::Range(0.0, 0.2))->capture_default_str();
   cmd->add_option("--track-pose-latency-ms", args->track.pose_latency_ms,
                   "Track: the camera pose is head tracking's this long after the exposure (ms; 0: at it)")
       ->check(CLI::Range(-1000.0, 1000.0))->capture_default_str();

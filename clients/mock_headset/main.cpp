@@ -111,6 +111,9 @@ void AddFlags(CLI::App& app, Args& a) {
   app.add_option("--track-flying-pixels", a.track_options.flying_pixel_rate,
                  "--track: share of the pixels on depth edges that return a depth between the edge's sides")
       ->check(CLI::Range(0.0, 1.0))->capture_default_str();
+  app.add_option("--track-depth-noise", a.track_options.depth_noise_fraction,
+                 "--track: depth noise sigma as a fraction of range (0: the frame kind's own, 0.01 long-throw, 0.003 AHAT)")
+      ->check(CLI::Range(0.0, 0.2))->capture_default_str();
   app.add_option_function<double>(
          "--track-pose-latency-ms", [&a](double ms) { a.track_options.pose_latency_s = ms / 1000.0; },
          "--track: the camera pose sent is head tracking's this long after the exposure (ms)")
@@ -337,9 +340,11 @@ int RunTrack(Args& args) {
   std::cout << fmt::format(
       "{} frames sent, {} updates, {} dropped; {} of {} steady updates within ADD 10 mm (median {:.1f}, p95 {:.1f} mm); "
       "latency frame sent -> update read median {:.1f} ms p95 {:.1f}; server frame received -> update sent median "
-      "{:.1f} p95 {:.1f}; processing median {:.1f} p95 {:.1f}; clock offset error {:.2f} ms; subscriber got {}\n",
+      "{:.1f} p95 {:.1f}; processing median {:.1f} p95 {:.1f}; clock offset error {:.2f} ms; subscriber got {}; "
+      "depth noise the server measured {:.2f} % of range\n",
       run.frames_sent, run.updates.size(), run.frames_dropped, within, scored, add_med, add_p95, c_med, c_p95, s_med,
-      s_p95, p_med, p_p95, 1000 * run.reported_offset_error_s, run.subscriber_updates);
+      s_p95, p_med, p_p95, 1000 * run.reported_offset_error_s, run.subscriber_updates,
+      run.updates.empty() ? 0.0 : 100 * run.updates.back().depth_noise);
   if (scored == 0) {
     std::cout << "FAILED: no settled update to score (a second of processed frames after the start and after the "
                  "jump): the server dropped too many frames, or the stream is too short\n";

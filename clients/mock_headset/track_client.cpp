@@ -91,6 +91,7 @@ TrackHeadsetRun RunTrackingHeadset(const TrackHeadsetOptions& o) {
   so.sender_clock_offset_s = 0.0;  // the peers' clocks below carry the offsets
   so.flying_pixel_rate = o.flying_pixel_rate;
   so.pose_latency_s = o.pose_latency_s;
+  so.depth_noise_fraction = o.depth_noise_fraction;
   auto simulator = sim::TrackSimulator::Create(robot, so, o.rng_seed);
   if (!simulator.ok()) return fail(simulator.status());
   out.jump_time_s = simulator->jump_time_s();
@@ -152,6 +153,7 @@ TrackHeadsetRun RunTrackingHeadset(const TrackHeadsetOptions& o) {
       r.true_time_s = it->second.true_time_s;
       r.after_jump = it->second.after_jump;
       r.unix_time_error_s = u.frame_time_unix_s() - UnixTimeOf(start + it->second.true_time_s);
+      r.depth_noise = u.depth_noise();
       out.frames_dropped = u.frames_dropped();
       out.updates.push_back(r);
     }

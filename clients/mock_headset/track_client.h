@@ -27,6 +27,7 @@ struct TrackHeadsetOptions {
   // A real device's effects (sim::TrackSimOptions): mixed pixels on depth edges, a late pose.
   double flying_pixel_rate = 0.0;
   double pose_latency_s = 0.0;
+  double depth_noise_fraction = 0.0;  // sigma / range; 0: the frame kind's own (1 % long-throw, 0.3 % AHAT)
   bool declare_latency = false;     // say pose_latency_s in the TrackRequest, as a device that knows it
   double headset_clock_offset_s = 12.5;   // the headset's clock runs this far ahead of the machine's
   double sender_clock_offset_s = -0.73;   // the joint sender's
@@ -45,6 +46,7 @@ struct TrackUpdateRecord {
   bool after_jump = false;
   // TrackingUpdate.frame_time_unix_s minus the exposure's Unix time on this machine's clock.
   double unix_time_error_s = 0.0;
+  double depth_noise = 0.0;   // TrackingUpdate.depth_noise: the server's measure of the depth's noise
 };
 
 struct TrackHeadsetRun {

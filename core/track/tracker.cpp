@@ -15,6 +15,7 @@
 #include "arref/icp/fast_icp.h"
 #include "arref/scene/sampling.h"
 #include "arref/track/camera_pose_history.h"
+#include "arref/track/depth_noise.h"
 
 namespace arref {
 
@@ -154,7 +155,12 @@ struct Tracker::Impl {
   // How far a depth may lie from the model's at a pixel and still agree with it (range z): the
   // camera-pose error and the sensor's noise, both growing with range. Nearer than that is an
   // occluder, farther the model is seen through.
-  double Tolerance(double z) const { return settings.agree_m + settings.agree_range_fraction * z; }
+  double Tolerance(double z) const { return settings.agree_m + settings.agree_range_fraction * noise_scale * z; }
+  // The depth's noise measured from the stream's frames over the sensor's the tolerance was set
+  // for, at least 1 (TrackerSettings::reference_depth_noise): it scales the tolerance's range part.
+  DepthNoiseEstimate depth_noise{30};
+  double noise_scale = 1.0;
+  void MeasureDepthNoise(const DepthFrame& f);
   struct Agreement {
     double agreement = 0.0, coverage = 0.0, support = 0.0, readable = 0.0;
     std::size_t agree = 0, through = 0, occluded = 0, ambiguous = 0, resolved = 0;
@@ -227,6 +233,13 @@ bool Tracker::Impl::Jumped(const std::pair<double, Iso3>& before, const DepthFra
 }
 
 bool Tracker::Impl::CameraJumped(const DepthFrame& f) const { return previous_camera && Jumped(*previous_camera, f); }
+
+void Tracker::Impl::MeasureDepthNoise(const DepthFrame& f) {
+  if (settings.reference_depth_noise <= 0) return;
+  if (const std::optional<double> noise = FrameDepthNoise(f)) depth_noise.Add(*noise);
+  if (const std::optional<double> noise = depth_noise.fraction())
+    noise_scale = std::max(1.0, *noise / settings.reference_depth_noise);
+}
 
 // The frame with its camera at the exposure when the device stamps its pose late: the reported
 // pose at frame time t - latency, interpolated from the frames before it (CameraPoseHistory).
@@ -477,6 +490,7 @@ Result<Tracker> Tracker::Create(std::shared_ptr<const RobotModel> robot, Tracker
   ARREF_ASSIGN_OR_RETURN(ModelCaster caster, ModelCaster::Create(*robot));
   auto impl = std::make_unique<Impl>(Impl{robot, settings, std::move(caster), PoseFilter(settings.filter), {}, {}, {}, {},
                                           0, {}, 0, {}});
+  impl->depth_noise = DepthNoiseEstimate(settings.depth_noise_frames);
   return Tracker(std::move(impl));
 }
 
@@ -545,6 +559,7 @@ TrackResult Tracker::Impl::Finish(Step& st, TrackState state) {
   if (state == TrackState::kReacquired || state == TrackState::kJump) candidate.reset(), jump_guess.reset();
   reference = ModelView();
   previous_camera = {st.frame.time_s, st.frame.T_world_camera};
+  out.depth_noise_fraction = depth_noise.fraction().value_or(0.0);
   out.total_ms = MsSince(st.start);
   return out;
 }
@@ -863,6 +878,7 @@ Result<TrackResult> Tracker::Process(const DepthFrame& reported, const JointValu
   Impl& I = *impl_;
   std::optional<DepthFrame> corrected;
   const DepthFrame& frame = I.AtExposure(reported, &corrected);
+  I.MeasureDepthNoise(frame);
   Impl::Step st(frame, I.CameraJumped(frame));
   LapTimer lap;
   const Status posed = I.caster.Pose(*I.robot, I.robot->ClampedToLimits(joints));

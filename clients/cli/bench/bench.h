@@ -71,6 +71,9 @@ struct TrackConfig {
   // pixels on depth edges, and a camera pose stamped off the exposure.
   double flying_pixel_rate = 0.0;
   double pose_latency_ms = 0.0;
+  // The depth's noise sigma as a fraction of range (0: the frame kind's own, 1 % long-throw and
+  // 0.3 % AHAT): a sensor noisier than the tracker's tolerances were set on.
+  double depth_noise_fraction = 0.0;
   double declared_latency_ms = 0.0;  // the latency the sender tells the tracker (TrackRequest)
 };
 

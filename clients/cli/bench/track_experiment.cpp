@@ -40,6 +40,7 @@ struct StreamStats {
   // them before the simulated jump (the world had not moved: a wrong one).
   int jumps = 0, reacquired = 0, false_rereferences = 0;
   double model_points = 0;  // mean per frame
+  double depth_noise = 0;   // the tracker's measure of the depth's noise at the last frame (sigma / range)
   double recovery_s = -1;  // < 0: no jump, or never recovered
   // From the first frame after the jump that shows the arm to the recovery (sim::JumpRecovery):
   // the part of it a tracker can answer for. < 0: not recovered.
@@ -118,6 +119,7 @@ Result<StreamStats> RunStream(const StreamSpec& spec) {
       if (!f.after_jump) ++s.false_rereferences;
     }
     s.model_points += static_cast<double>(r.model_points) / frame_count;
+    s.depth_noise = r.depth_noise_fraction;
     const double add_mm = 1000 * step.add_m;
     if (spdlog::should_log(spdlog::level::debug))
       spdlog::debug("track frame {} t {:.3f}: {} ADD {:.1f} mm {}, measured {:.1f} mm {}, agreement {:.2f} (filter {:.2f}), {} model / {} depth points, {:.1f} ms",
@@ -169,6 +171,7 @@ StreamSpec DeviceStream(const TrackConfig& tc, const BenchRobot& robot) {
   StreamSpec spec;
   spec.robot = robot.model;
   spec.options.flying_pixel_rate = tc.flying_pixel_rate;
+  spec.options.depth_noise_fraction = tc.depth_noise_fraction;
   spec.options.pose_latency_s = tc.pose_latency_ms / 1000.0;
   spec.declared_latency_s = tc.declared_latency_ms / 1000.0;
   return spec;
@@ -200,6 +203,9 @@ Status TrackExperiment(const Config& config, Tables* tables) {
                       "edge's two sides), and the camera pose is head tracking's {:.0f} ms after the exposure; the "
                       "tracker is told {:.0f} ms.\n\n",
                       100 * tc.flying_pixel_rate, tc.pose_latency_ms, tc.declared_latency_ms);
+  if (tc.depth_noise_fraction > 0)
+    md << fmt::format("Depth noise on every stream: sigma {:.1f} % of range (the frame kinds' own: 1 % long-throw, 0.3 % AHAT).\n\n",
+                      100 * tc.depth_noise_fraction);
   md << "| robot | frames | streams | within 10 mm % | steady % | ADD median mm | ADD p95 mm | lost frames | "
         "recovery s (worst) | after shown s (worst) | frame ms median | frame ms p95 | baseline ms median | baseline / tracker | "
         "baseline ADD median mm |\n";
@@ -230,10 +236,11 @@ Status TrackExperiment(const Config& config, Tables* tables) {
         worst_after_shown = std::max(worst_after_shown, s.recovery_after_shown_s);
         // The simulator's seed, so that a failing stream can be run again alone (sim::TrackSimulator).
         spdlog::info("bench: track {} {} stream {} (simulator seed {}): {}/{} within 10 mm, recovery {:.2f} s ({:.2f} s after the arm showed), frame "
-                     "median {:.1f} ms, {} lost, {} without the robot in view, {:.0f} model points per frame",
+                     "median {:.1f} ms, {} lost, {} without the robot in view, {:.0f} model points per frame, depth noise "
+                     "measured {:.2f} % of range",
                      robot.label, kind_name, k, spec.seed, s.within, s.scored, s.recovery_s, s.recovery_after_shown_s,
                      Quantile(s.frame_ms, 0.5),
-                     s.lost, s.no_robot, s.model_points);
+                     s.lost, s.no_robot, s.model_points, 100 * s.depth_noise);
       }
       const double median_ms = Quantile(all.frame_ms, 0.5), baseline_ms = Quantile(all.baseline_ms, 0.5);
       md << fmt::format("| {} ({}) | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} | {} |\n", robot.label,

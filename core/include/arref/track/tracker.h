@@ -40,6 +40,15 @@ struct TrackerSettings {
   // it disagrees when the depth lies behind the model by more (seen through the model).
   double agree_m = 0.02;
   double agree_range_fraction = 0.015;
+  // The depth noise (sigma / range) of the sensor agree_range_fraction was set for: HoloLens 2's
+  // long-throw camera, 1 % of range, as FrameDepthNoise (depth_noise.h) reads its simulated
+  // frames (1.02-1.04 % in the dev streams). A stream whose frames measure noisier scales the
+  // range part by its noise over this one. Fixed, at 3 % of range no pose agreed with
+  // min_reacquire_agreement of its pixels and most dev streams were lost for good
+  // (docs/tracking.md, "A noisier depth sensor"); scaling the ICP distances, the crop's margin
+  // and the floor clearance as well did worse. 0: never scaled. Wrapped frames are not measured.
+  double reference_depth_noise = 0.0105;
+  std::size_t depth_noise_frames = 30;  // the noise is the median of this many frames' figures
   double min_agreement = 0.6;     // below: the fit is lost
   // A pose found by re-acquisition must agree at least this well before the filter restarts
   // there: a wrong basin next to the robot often agrees with two thirds of its pixels.
@@ -125,6 +134,9 @@ struct TrackResult {
   std::optional<Iso3> T_world_base_measured;  // this frame's registration, when it fit
   double agreement = 0.0;         // fraction of visible model pixels the depth agrees with
   double agreement_filtered = 0.0;  // the same for the filter's explanation of this frame
+  // The stream's depth noise (sigma / range) measured from its frames, which sets the agreement's
+  // tolerance when it is above the sensor's the tracker was set on; 0: not measured (wrapped frames).
+  double depth_noise_fraction = 0.0;
   std::size_t model_points = 0;
   std::size_t depth_points = 0;
   int hypotheses = 0;             // poses tried (1 when tracking)

@@ -21,6 +21,9 @@
 #include "arref/pipeline/pipeline.h"
 #include "arref/scene/sampling.h"
 #include "arref/sim/cell_simulator.h"
+#include "arref/sim/track_simulator.h"
+#include "arref/track/depth_noise.h"
+#include "arref/track/tracker.h"
 #include "arref/scene/spatial_mesh.h"
 #include "arref/fusion/tracking_error.h"
 #include "arref/fusion/tsdf.h"
@@ -205,6 +208,49 @@ void BM_TrackingErrorWeights(benchmark::State& state) {
   for (auto _ : state) benchmark::DoNotOptimize(TrackingErrorWeights(surface, eyes, {}));
 }
 
+// A second of the built-in robot's long-throw stream (320x288 at 30 fps, no jump), as the tracker
+// gets it: frames, the joints at their exposure, the first guess.
+struct TrackStream {
+  std::shared_ptr<const RobotModel> robot;
+  std::vector<sim::SimFrame> frames;
+  Iso3 first_guess;
+};
+
+const TrackStream& LongThrowSecond() {
+  static const TrackStream s = [] {
+    TrackStream out;
+    out.robot = Cell().model_robot;
+    sim::TrackSimOptions options;
+    options.duration_s = 1.0;
+    options.jump_at_s = 10.0;
+    auto simulator = sim::TrackSimulator::Create(out.robot, options, 3);
+    out.first_guess = simulator->T_world_base_guess();
+    for (int i = 0; i < simulator->frame_count(); ++i) out.frames.push_back(*simulator->Next());
+    return out;
+  }();
+  return s;
+}
+
+// The baseline of BM_FrameDepthNoise: the tracker's whole work on those frames, per frame.
+void BM_TrackerFrame(benchmark::State& state) {
+  const TrackStream& s = LongThrowSecond();
+  for (auto _ : state) {
+    auto tracker = Tracker::Create(s.robot, {});
+    if (!tracker.ok()) return state.SkipWithError(tracker.status().ToString().c_str());
+    tracker->Seed(s.first_guess);
+    for (const sim::SimFrame& f : s.frames) benchmark::DoNotOptimize(tracker->Process(f.frame, f.joints_true));
+  }
+  state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(s.frames.size()));
+}
+
+// What measuring a frame's depth noise adds to each unwrapped frame (FrameDepthNoise).
+void BM_FrameDepthNoise(benchmark::State& state) {
+  const TrackStream& s = LongThrowSecond();
+  for (auto _ : state)
+    for (const sim::SimFrame& f : s.frames) benchmark::DoNotOptimize(FrameDepthNoise(f.frame));
+  state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(s.frames.size()));
+}
+
 // What a new joint state costs arref-icp before its first request: the posed robot and its
 // expected surfaces (all round and the eight walks) at the headset's voxel.
 void BM_NewJointState(benchmark::State& state) {
@@ -243,6 +289,8 @@ BENCHMARK(BM_NewJointState)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchm
 BENCHMARK(BM_NewJointStateOneByOne)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ExpectedInContext)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_BandVoxelRows)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_TrackerFrame)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_FrameDepthNoise)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_TrackingErrorWeights)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ArrefIteration)->ArgsProduct({{2000, 5000}, {1, 2}, {0, 1}})->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ArrefTenIterations)->ArgsProduct({{2000, 5000}, {1, 2}})->Unit(benchmark::kMillisecond);

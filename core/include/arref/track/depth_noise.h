@@ -28,7 +28,6 @@ class DepthNoiseEstimate {
   explicit DepthNoiseEstimate(std::size_t frames = 30) : frames_(frames) {}
   void Add(double fraction);
   std::optional<double> fraction() const;  // none before the first figure
-  void Clear() { recent_.clear(); }
 
  private:
   std::size_t frames_;

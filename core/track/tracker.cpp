@@ -157,7 +157,8 @@ struct Tracker::Impl {
   // occluder, farther the model is seen through.
   double Tolerance(double z) const { return settings.agree_m + settings.agree_range_fraction * noise_scale * z; }
   // The depth's noise measured from the stream's frames over the sensor's the tolerance was set
-  // for, at least 1 (TrackerSettings::reference_depth_noise): it scales the tolerance's range part.
+  // for, at least 1 (TrackerSettings::reference_depth_noise): it scales the tolerance's range part
+  // and the fit's floor clearance.
   DepthNoiseEstimate depth_noise{30};
   double noise_scale = 1.0;
   void MeasureDepthNoise(const DepthFrame& f);
@@ -396,7 +397,7 @@ Measurement Tracker::Impl::Measure(const DepthFrame& f, const Iso3& T0, const st
   m.start_agree = start.agree;
   m.start_hidden = start.agree + start.through == 0 && start.occluded + start.ambiguous > 0;
   Aabb crop = view.bounds_base.Grown(static_cast<float>(settings.crop_margin_m));
-  crop.min.z() = view.bounds_base.min.z() + static_cast<float>(settings.floor_clearance_m);
+  crop.min.z() = view.bounds_base.min.z() + static_cast<float>(noise_scale * settings.floor_clearance_m);
   // Depth in front of the model by more than the agreement's tolerance is an occluder (at the
   // long-throw walk's far end 85-95 % of the visible model pixels), which only pulls the fit off;
   // the fit leaves out the pixels the agreement counts as occluded (until 2026-12-03 the bar was
@@ -445,7 +446,7 @@ std::optional<Iso3> Tracker::Impl::GridSearch(const DepthFrame& f, const std::ve
     const ModelView view = RenderModel(f, guess);
     if (view.points_base.size() < settings.min_model_points) continue;
     Aabb crop = view.bounds_base.Grown(static_cast<float>(reach));
-    crop.min.z() = view.bounds_base.min.z() + static_cast<float>(settings.floor_clearance_m);
+    crop.min.z() = view.bounds_base.min.z() + static_cast<float>(noise_scale * settings.floor_clearance_m);
     const PointCloud all = DepthPoints(f, view, guess, crop);
     const PointCloud source = Thinned(all, settings.search_points);
     out->model_ms += lap.Lap();

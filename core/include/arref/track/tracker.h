@@ -27,7 +27,7 @@ struct TrackerSettings {
   std::size_t dense_below_points = 1000;  // fewer model points at that stride: every pixel
   std::size_t max_source_points = 2500;  // depth points per ICP
   double crop_margin_m = 0.08;           // around the posed model's bounds at the prediction
-  double floor_clearance_m = 0.03;       // depth points this close above the base's bottom are floor
+  double floor_clearance_m = 0.03;       // depth points this close above the base's bottom are floor (at 1 % noise)
   std::vector<double> icp_distances_m = {0.06, 0.025};
   int icp_iterations = 12;
   // ICP's stop on a cost that hardly changes (IcpSettings::converged_cost_ratio) saves the
@@ -43,10 +43,11 @@ struct TrackerSettings {
   // The depth noise (sigma / range) of the sensor agree_range_fraction was set for: HoloLens 2's
   // long-throw camera, 1 % of range, as FrameDepthNoise (depth_noise.h) reads its simulated
   // frames (1.02-1.04 % in the dev streams). A stream whose frames measure noisier scales the
-  // range part by its noise over this one. Fixed, at 3 % of range no pose agreed with
-  // min_reacquire_agreement of its pixels and most dev streams were lost for good
-  // (docs/tracking.md, "A noisier depth sensor"); scaling the ICP distances, the crop's margin
-  // and the floor clearance as well did worse. 0: never scaled. Wrapped frames are not measured.
+  // range part, and floor_clearance_m (the floor's depth noise), by its noise over this one.
+  // Fixed, at 3 % of range no pose agreed with min_reacquire_agreement of its pixels and most dev
+  // streams were lost for good (docs/tracking.md, "A noisier depth sensor"); scaling the ICP
+  // distances and the crop's margin as well did worse. 0: never scaled. Wrapped frames are not
+  // measured.
   double reference_depth_noise = 0.0105;
   std::size_t depth_noise_frames = 30;  // the noise is the median of this many frames' figures
   double min_agreement = 0.6;     // below: the fit is lost

@@ -27,14 +27,10 @@ void DepthNoiseEstimate::Add(double fraction) {
   if (!std::isfinite(fraction)) return;
   recent_.push_back(fraction);
   while (recent_.size() > frames_) recent_.pop_front();
-}
-
-std::optional<double> DepthNoiseEstimate::fraction() const {
-  if (recent_.empty()) return std::nullopt;
   std::vector<double> v(recent_.begin(), recent_.end());
   const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
   std::nth_element(v.begin(), mid, v.end());
-  return *mid;
+  median_ = *mid;
 }
 
 }  // namespace arref

@@ -156,10 +156,12 @@ struct Tracker::Impl {
   // camera-pose error and the sensor's noise, both growing with range. Nearer than that is an
   // occluder, farther the model is seen through.
   double Tolerance(double z) const { return settings.agree_m + settings.agree_range_fraction * noise_scale * z; }
+  // Depth this close above the model's bottom is the floor: its noise, scaled as the tolerance's.
+  double FloorClearance() const { return noise_scale * settings.floor_clearance_m; }
   // The depth's noise measured from the stream's frames over the sensor's the tolerance was set
   // for, at least 1 (TrackerSettings::reference_depth_noise): it scales the tolerance's range part
-  // and the fit's floor clearance.
-  DepthNoiseEstimate depth_noise{30};
+  // and the floor clearance.
+  DepthNoiseEstimate depth_noise;
   double noise_scale = 1.0;
   void MeasureDepthNoise(const DepthFrame& f);
   struct Agreement {
@@ -397,7 +399,7 @@ Measurement Tracker::Impl::Measure(const DepthFrame& f, const Iso3& T0, const st
   m.start_agree = start.agree;
   m.start_hidden = start.agree + start.through == 0 && start.occluded + start.ambiguous > 0;
   Aabb crop = view.bounds_base.Grown(static_cast<float>(settings.crop_margin_m));
-  crop.min.z() = view.bounds_base.min.z() + static_cast<float>(noise_scale * settings.floor_clearance_m);
+  crop.min.z() = view.bounds_base.min.z() + static_cast<float>(FloorClearance());
   // Depth in front of the model by more than the agreement's tolerance is an occluder (at the
   // long-throw walk's far end 85-95 % of the visible model pixels), which only pulls the fit off;
   // the fit leaves out the pixels the agreement counts as occluded (until 2026-12-03 the bar was
@@ -446,7 +448,7 @@ std::optional<Iso3> Tracker::Impl::GridSearch(const DepthFrame& f, const std::ve
     const ModelView view = RenderModel(f, guess);
     if (view.points_base.size() < settings.min_model_points) continue;
     Aabb crop = view.bounds_base.Grown(static_cast<float>(reach));
-    crop.min.z() = view.bounds_base.min.z() + static_cast<float>(noise_scale * settings.floor_clearance_m);
+    crop.min.z() = view.bounds_base.min.z() + static_cast<float>(FloorClearance());
     const PointCloud all = DepthPoints(f, view, guess, crop);
     const PointCloud source = Thinned(all, settings.search_points);
     out->model_ms += lap.Lap();

@@ -118,7 +118,7 @@ def cmd_send_recording(args):
 def _update_json(u, truth):
     out = {"frame_id": u.frame_id, "state": u.state, "frame": u.frame, "position": list(u.pose[:3]),
            "orientation": list(u.pose[3:]), "frame_time_unix_s": u.frame_time_unix_s, "agreement": u.agreement,
-           "process_ms": u.process_ms, "latency_ms": u.latency_ms, "frames_dropped": u.frames_dropped}
+           "depth_noise": u.depth_noise, "process_ms": u.process_ms, "latency_ms": u.latency_ms, "frames_dropped": u.frames_dropped}
     if truth is not None and u.frame_id in truth.frames and u.frame == "ros":
         error_m, yaw_rad = pose_error(u.matrix, truth.frames[u.frame_id]["T_world_base"])
         out["error_mm"], out["yaw_error_deg"] = error_m * 1e3, math.degrees(yaw_rad)

@@ -88,6 +88,7 @@ class TrackingUpdate:
     frames_processed: int
     frames_dropped: int
     agreement: float
+    depth_noise: float       # the depth's noise the server measured, sigma / range (0: not measured)
     proto: object = field(repr=False)  # the arref.v1.TrackingUpdate message itself
 
     @classmethod
@@ -101,7 +102,7 @@ class TrackingUpdate:
                    matrix_from_pose(pose) if any(pose[3:]) else np.full((4, 4), np.nan), u.frame_time_s,
                    u.frame_time_unix_s, covariance, dict(zip(u.joints.names, u.joints.positions)),
                    u.joint_staleness_s, u.process_ms, u.latency_ms, u.frames_processed, u.frames_dropped,
-                   u.agreement, u)
+                   u.agreement, u.depth_noise, u)
 
     @property
     def ros_pose(self):

@@ -72,6 +72,8 @@ def test_track_follows_the_simulated_robot(server, track_stream):
         assert set(u.joints) == set(true_joints)
         assert max(abs(u.joints[k] - v) for k, v in true_joints.items()) < 0.01
         assert np.all(np.isfinite(u.covariance)) and np.all(np.diag(u.covariance) > 0)
+    # The long-throw camera's 1 % of range, as the server measures it from the frames.
+    assert abs(scored[-1].depth_noise - 0.0105) < 0.001
     within = sum(e < WITHIN_M for e in errors_m)
     if SANITIZED:
         return

@@ -35,6 +35,7 @@ struct SimulateTrackArgs {
   std::uint64_t rng_seed = 1;
   double pose_latency_ms = 0.0;  // each frame's camera pose is head tracking's this long after the exposure
   bool declare_latency = false;  // and the TrackRequest says so, as a device that knows it
+  double depth_noise = 0.0;      // sigma / range; 0: the frame kind's own
 };
 
 pb::ClientMessage TrackRequestMessage(const SimulateTrackArgs& args, const Iso3& seed) {
@@ -69,6 +70,7 @@ int Run(const SimulateTrackArgs& args) {
   options.jump_at_s = args.jump_at;
   options.sender_clock_offset_s = 0.0;  // one clock for the whole stream: the sender's own
   options.pose_latency_s = args.pose_latency_ms / 1000.0;
+  options.depth_noise_fraction = args.depth_noise;
   auto simulator = sim::TrackSimulator::Create(robot, options, args.rng_seed);
   if (!simulator.ok()) return Fail(simulator.status().WithContext("simulating the track"));
 
@@ -139,6 +141,9 @@ void AddSimulateTrackCommand(CLI::App& app, int* exit_code) {
                   "Each frame's camera pose is head tracking's this long after the exposure (ms)")
       ->check(CLI::Range(0.0, 1000.0))->capture_default_str();
   cmd->add_flag("--declare-latency", args->declare_latency, "Say that latency in the stream's TrackRequest");
+  cmd->add_option("--depth-noise", args->depth_noise,
+                  "Depth noise sigma as a fraction of range (0: the frame kind's own, 0.01 long-throw, 0.003 AHAT)")
+      ->check(CLI::Range(0.0, 0.2))->capture_default_str();
   cmd->callback([args, exit_code] { *exit_code = Run(*args); });
 }
 

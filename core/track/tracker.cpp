@@ -161,7 +161,7 @@ struct Tracker::Impl {
   // The depth's noise measured from the stream's frames over the sensor's the tolerance was set
   // for, at least 1 (TrackerSettings::reference_depth_noise): it scales the tolerance's range part
   // and the floor clearance.
-  DepthNoiseEstimate depth_noise;
+  DepthNoiseEstimate depth_noise{settings.depth_noise_frames};
   double noise_scale = 1.0;
   void MeasureDepthNoise(const DepthFrame& f);
   struct Agreement {
@@ -493,7 +493,6 @@ Result<Tracker> Tracker::Create(std::shared_ptr<const RobotModel> robot, Tracker
   ARREF_ASSIGN_OR_RETURN(ModelCaster caster, ModelCaster::Create(*robot));
   auto impl = std::make_unique<Impl>(Impl{robot, settings, std::move(caster), PoseFilter(settings.filter), {}, {}, {}, {},
                                           0, {}, 0, {}});
-  impl->depth_noise = DepthNoiseEstimate(settings.depth_noise_frames);
   return Tracker(std::move(impl));
 }
 

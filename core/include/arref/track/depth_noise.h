@@ -25,13 +25,12 @@ std::optional<double> FrameDepthNoise(const DepthFrame& frame, int row_step = 4,
 // sensor's noise does not change between frames.
 class DepthNoiseEstimate {
  public:
-  DepthNoiseEstimate() = default;
-  explicit DepthNoiseEstimate(std::size_t frames) : frames_(frames) {}
+  explicit DepthNoiseEstimate(std::size_t frames = 30) : frames_(frames) {}
   void Add(double fraction);  // a non-finite figure is ignored
   std::optional<double> fraction() const { return median_; }  // none before the first figure
 
  private:
-  std::size_t frames_ = 30;
+  std::size_t frames_;
   std::deque<double> recent_;
   std::optional<double> median_;  // of recent_, kept as figures come
 };

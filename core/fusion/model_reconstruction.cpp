@@ -10,6 +10,7 @@
 #include <tbb/blocked_range.h>
 #include <tbb/parallel_for.h>
 
+#include "arref/base/stats.h"
 #include "arref/fusion/model_visibility.h"
 #include "arref/scene/nearest_neighbor.h"
 #include "arref/fusion/raycaster.h"
@@ -322,9 +323,7 @@ double MedianEdgeLength(const TriangleMesh& mesh) {
       for (int e = 0; e < 3; ++e) edges[3 * k + e] = (mesh.vertices[tri[e]] - mesh.vertices[tri[(e + 1) % 3]]).norm();
     }
   });
-  auto mid = edges.begin() + static_cast<std::ptrdiff_t>(edges.size() / 2);
-  std::nth_element(edges.begin(), mid, edges.end());
-  return *mid;
+  return UpperMiddle(edges);
 }
 
 }  // namespace arref

@@ -10,6 +10,8 @@
 #include <cmath>
 #include <limits>
 
+#include "arref/base/stats.h"
+
 namespace arref {
 namespace {
 
@@ -262,9 +264,7 @@ double MedianPlaneDistance(const PointCloud& source, const TargetCloud& target, 
   });
   std::erase(distances, kNone);
   if (distances.empty()) return std::numeric_limits<double>::infinity();
-  auto mid = distances.begin() + static_cast<std::ptrdiff_t>(distances.size() / 2);
-  std::nth_element(distances.begin(), mid, distances.end());
-  return *mid;
+  return UpperMiddle(distances);
 }
 
 }  // namespace arref

@@ -1,8 +1,9 @@
 #include "arref/track/depth_noise.h"
 
-#include <algorithm>
 #include <cmath>
 #include <vector>
+
+#include "arref/base/stats.h"
 
 namespace arref {
 
@@ -18,9 +19,7 @@ std::optional<double> FrameDepthNoise(const DepthFrame& frame, int row_step, std
       ratios.push_back(std::abs(a - 2 * b + d) / b);
     }
   if (ratios.size() < min_samples) return std::nullopt;
-  const auto mid = ratios.begin() + static_cast<std::ptrdiff_t>(ratios.size() / 2);
-  std::nth_element(ratios.begin(), mid, ratios.end());
-  return 1.4826 * static_cast<double>(*mid) / std::sqrt(6.0);
+  return 1.4826 * static_cast<double>(UpperMiddle(ratios)) / std::sqrt(6.0);
 }
 
 void DepthNoiseEstimate::Add(double fraction) {
@@ -28,9 +27,7 @@ void DepthNoiseEstimate::Add(double fraction) {
   recent_.push_back(fraction);
   while (recent_.size() > frames_) recent_.pop_front();
   std::vector<double> v(recent_.begin(), recent_.end());
-  const auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
-  std::nth_element(v.begin(), mid, v.end());
-  median_ = *mid;
+  median_ = UpperMiddle(v);
 }
 
 }  // namespace arref

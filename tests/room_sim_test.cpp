@@ -51,6 +51,14 @@ TEST(RoomSimulator, TwoArmsLieOnTheMappedMeshWhereTheTruthSays) {
     // The base stands on the floor or its pedestal: height above the floor as drawn.
     const double floor_z = room.T_world_room.translation().z();
     EXPECT_NEAR(arm.T_world_base.translation().z() - floor_z, arm.pedestal_m, 1e-9);
+    // Where the walk's tracking errors (4 mm, 0.3 deg per view) put the arm in the map: measured,
+    // millimetres off, and gravity aligned (a move and a turn about the vertical only).
+    ASSERT_TRUE(arm.T_world_base_mesh.has_value());
+    EXPECT_GT(arm.mesh_error_add_m, 0.0);
+    EXPECT_LT(arm.mesh_error_add_m, 0.02);
+    const Iso3 T_mesh_true = *arm.T_world_base_mesh * arm.T_world_base.inverse();
+    EXPECT_LT(T_mesh_true.translation().norm(), 0.03);
+    EXPECT_NEAR(T_mesh_true.linear()(2, 2), 1.0, 1e-9);
   }
   EXPECT_GT((room.arms[0].T_world_base.translation() - room.arms[1].T_world_base.translation()).norm(), 0.3);
 }

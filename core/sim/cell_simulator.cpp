@@ -162,16 +162,25 @@ Iso3 RandomJitter(const ScanOptions& scan, std::mt19937_64& rng) {
   return T;
 }
 
+double SeenTolerance(const ScanOptions& scan) { return 0.02 + 3 * scan.depth_noise_m; }
+
+std::function<Iso3(const Vec3&)> SurfaceErrors(const DeviceVariation& device, std::uint64_t rng_seed) {
+  const int updates = std::max(1, device.surface_updates);
+  return [=](const Vec3& p) {
+    const double size = device.surface_size_m;
+    const Vec3 corner = (p / size).array().floor().matrix() * size;
+    return ErrorOfCube(device, corner, size, updates, rng_seed).T_moved_true;
+  };
+}
+
 }  // namespace detail
 
 namespace {
 
 using detail::MeshImprint;
 using detail::RandomJitter;
-
-// A robot sample is seen by a view when the range at its pixel lies this close to it: a few
-// depth sigmas and the sampling's spacing.
-double SeenTolerance(const ScanOptions& scan) { return 0.02 + 3 * scan.depth_noise_m; }
+using detail::SeenTolerance;
+using detail::SurfaceErrors;
 
 // The walker circles the robot's front (+x) on an arc; what lies behind stays unseen.
 std::vector<View> WalkingPath(const ScanOptions& scan, const Iso3& T_cell_base, std::mt19937_64& rng) {
@@ -418,16 +427,6 @@ void SetMeshError(const MeshImprint& imprint, const std::function<Iso3(const Vec
   cell->T_world_base_mesh = *T_mesh_true * cell->T_world_base;
 }
 
-// The per-surface head-pose errors of the device's mesher at a world point (ErrorOfCube, the
-// draw the mesher made).
-std::function<Iso3(const Vec3&)> SurfaceErrors(const DeviceVariation& device, int updates, std::uint64_t rng_seed) {
-  return [=](const Vec3& p) {
-    const double size = device.surface_size_m;
-    const Vec3 corner = (p / size).array().floor().matrix() * size;
-    return ErrorOfCube(device, corner, size, updates, rng_seed).T_moved_true;
-  };
-}
-
 }  // namespace
 
 namespace detail {
@@ -652,7 +651,7 @@ Result<SimulatedCell> SimulateCell(const RobotModel& robot, const SimOptions& re
     if (!surfaces.ok()) return surfaces.status().WithContext("simulating the headset's scan (open3d mesher)");
     cell.surfaces = std::move(*surfaces);
     for (const Surface& s : cell.surfaces) triangles += s.mesh.triangles.size();
-    if (imprint) SetMeshError(*imprint, SurfaceErrors(device, std::max(1, device.surface_updates), rng_seed), &cell);
+    if (imprint) SetMeshError(*imprint, SurfaceErrors(device, rng_seed), &cell);
   } else {
     cell.voxel_m = VoxelSize(options.fusion);
     auto fused = ScanAndFuse(*scene, robot, options, cell.T_world_cell, cell.voxel_m, rng_seed, rng, &cell.head_path_world,

@@ -10,6 +10,7 @@
 #include "arref/fusion/raycaster.h"
 #include "arref/fusion/tsdf.h"
 #include "arref/scene/sampling.h"
+#include "mesh_imprint.h"
 #include "open3d_mesher.h"
 #include "scan_common.h"
 #include "scene_builder.h"
@@ -22,6 +23,7 @@ using U = std::uniform_real_distribution<double>;
 constexpr double kWall = 0.1;
 using detail::kNoiseSigmasInBand;
 using detail::kSecondsPerView;
+using detail::MeshImprint;
 constexpr double kSmallVoxel = 0.0346;  // the small configuration's (1,000 triangles per m^3)
 
 // One placed object's footprint (room frame, x-y) and what it is.
@@ -320,8 +322,16 @@ void DropPatches(RangeImage& range, const PinholeCamera& camera, const Iso3& T_r
     }
 }
 
+// Every view's depth image fed to each arm's imprint, as it is fused.
+void Imprint(const PinholeCamera& camera, const Iso3& T_world_room, const View& view, const RangeImage& range,
+             const ScanOptions& scan, std::vector<MeshImprint>& imprints) {
+  for (MeshImprint& m : imprints)
+    m.AddView(camera, T_world_room * view.T_room_camera_true, T_world_room * view.T_room_camera_believed, range,
+              detail::SeenTolerance(scan));
+}
+
 Result<std::vector<Surface>> FuseOwn(const Layout& l, const std::vector<View>& views, const ScanOptions& scan, double voxel,
-                                     const Iso3& T_world_room, std::uint64_t seed) {
+                                     const Iso3& T_world_room, std::uint64_t seed, std::vector<MeshImprint>& imprints) {
   ARREF_ASSIGN_OR_RETURN(const RayCaster caster, RayCaster::Create(l.mesh));
   const PinholeCamera camera = PinholeCamera::FromFov(scan.image_width, scan.image_height, scan.fov_horizontal_deg);
   TsdfOptions tsdf;
@@ -334,6 +344,7 @@ Result<std::vector<Surface>> FuseOwn(const Layout& l, const std::vector<View>& v
     std::vector<float> incidence;
     RangeImage range = caster.Render(camera, views[static_cast<std::size_t>(i)].T_room_camera_true, scan.max_range_m, &incidence);
     detail::AddRangeNoise(range, scan, seed, i);
+    Imprint(camera, T_world_room, views[static_cast<std::size_t>(i)], range, scan, imprints);
     ARREF_RETURN_IF_ERROR(volume.Integrate(camera, T_world_room * views[static_cast<std::size_t>(i)].T_room_camera_believed,
                                            range, incidence));
   }
@@ -342,7 +353,7 @@ Result<std::vector<Surface>> FuseOwn(const Layout& l, const std::vector<View>& v
 
 Result<std::vector<Surface>> FuseOpen3d(const Layout& l, const TriangleMesh& arms_room, const std::vector<View>& views,
                                         const ScanOptions& scan, const DeviceVariation& device, const Iso3& T_world_room,
-                                        std::uint64_t seed) {
+                                        std::uint64_t seed, std::vector<MeshImprint>& imprints) {
   ARREF_ASSIGN_OR_RETURN(const RayCaster caster, RayCaster::Create(l.mesh));
   const PinholeCamera camera = PinholeCamera::FromFov(scan.image_width, scan.image_height, scan.fov_horizontal_deg);
   const auto patches = Patches(arms_room, l.mesh, device, seed);
@@ -353,6 +364,7 @@ Result<std::vector<Surface>> FuseOpen3d(const Layout& l, const TriangleMesh& arm
     RangeImage range = caster.Render(camera, v.T_room_camera_true, scan.max_range_m);
     detail::AddRangeNoise(range, scan, seed, i);
     DropPatches(range, camera, v.T_room_camera_true, patches);
+    Imprint(camera, T_world_room, v, range, scan, imprints);
     ranges.push_back(std::move(range));
     T_world_camera.push_back(T_world_room * v.T_room_camera_believed);
   }
@@ -430,13 +442,33 @@ Result<SimulatedRoom> SimulateRoom(const RoomRobots& robots, const RoomOptions& 
     arc = room.device.walk_arc_deg, distance = std::min(room.device.walk_distance_m, 2.5);
   }
   const std::vector<View> views = Walk(l, walked, scan, arc, distance, rng);
+  std::vector<MeshImprint> imprints;
+  std::vector<std::size_t> imprinted;  // the arm of each imprint
+  for (std::size_t a = 0; a < room.arms.size(); ++a) {
+    const RoomArm& arm = room.arms[a];
+    if (!arm.requested) continue;
+    ARREF_ASSIGN_OR_RETURN(const TriangleMesh posed, robots.requested->PosedMesh(arm.joints));
+    PointCloud points = SampleSurface(posed, 2000, rng_seed + a);
+    points.Transform(arm.T_world_base);
+    imprints.emplace_back(std::move(points), arm.T_world_base.translation());
+    imprinted.push_back(a);
+  }
   for (const View& v : views) room.head_path_world.push_back(room.T_world_room * v.T_room_camera_believed.translation());
   if (options.mesher == Mesher::kOpen3d) {
     room.voxel_m = room.device.voxel_m;
-    ARREF_ASSIGN_OR_RETURN(room.surfaces, FuseOpen3d(l, arms_room, views, scan, room.device, room.T_world_room, rng_seed));
+    ARREF_ASSIGN_OR_RETURN(room.surfaces, FuseOpen3d(l, arms_room, views, scan, room.device, room.T_world_room, rng_seed, imprints));
   } else {
     room.voxel_m = options.voxel_m > 0 ? options.voxel_m : kSmallVoxel;
-    ARREF_ASSIGN_OR_RETURN(room.surfaces, FuseOwn(l, views, scan, room.voxel_m, room.T_world_room, rng_seed));
+    ARREF_ASSIGN_OR_RETURN(room.surfaces, FuseOwn(l, views, scan, room.voxel_m, room.T_world_room, rng_seed, imprints));
+  }
+  const auto surface_errors = options.mesher == Mesher::kOpen3d ? detail::SurfaceErrors(room.device, rng_seed)
+                                                                : std::function<Iso3(const Vec3&)>{};
+  for (std::size_t k = 0; k < imprints.size(); ++k) {
+    const std::optional<Iso3> T_mesh_true = imprints[k].Motion(surface_errors);
+    if (!T_mesh_true) continue;  // too little of the arm seen: not measured
+    RoomArm& arm = room.arms[imprinted[k]];
+    arm.mesh_error_add_m = imprints[k].AddOf(*T_mesh_true);
+    arm.T_world_base_mesh = *T_mesh_true * arm.T_world_base;
   }
   for (const Surface& s : room.surfaces) room.triangles += s.mesh.triangles.size();
   if (room.triangles == 0) return Status::FailedPrecondition(fmt::format("room {}: the simulated walk mapped nothing", rng_seed));

@@ -3,6 +3,7 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <random>
 #include <vector>
 
@@ -38,6 +39,12 @@ struct CubeError {
   Iso3 T_moved_true = Iso3::Identity();
 };
 CubeError ErrorOfCube(const DeviceVariation& device, const Vec3& corner, double size, int updates, std::uint64_t rng_seed);
+// The per-surface head-pose errors of the device's mesher at a world point (ErrorOfCube, the
+// draw the mesher made), for MeshImprint::Motion.
+std::function<Iso3(const Vec3&)> SurfaceErrors(const DeviceVariation& device, std::uint64_t rng_seed);
+// A robot sample is seen by a view (MeshImprint::AddView) when the range at its pixel lies this
+// close to it: a few depth sigmas and the sampling's spacing.
+double SeenTolerance(const ScanOptions& scan);
 
 // The device's mesher on a walk's range images: Open3D's TSDF fused up to each update time (over
 // the walk's last third), cut into surface cubes that are each meshed at their own time (the

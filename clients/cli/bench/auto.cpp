@@ -36,6 +36,9 @@ struct AutoRun {
   double primary_add_m = std::nan("");  // the primary instance to the nearest requested arm
   int instances = 0, arms_found = 0, wrong_ok = 0, candidates = 0;
   int arms_near = 0;  // arms within kWrongAddM of an instance: found, if not within kSuccessAddM
+  // Per requested arm: its mesh error (sim::RoomArm::mesh_error_add_m; NaN: not measured) and
+  // the ADD of the instance nearest it (inf: no instance).
+  std::vector<std::pair<double, double>> arm_mesh_and_fit;
   double ms = 0;
   std::map<std::string, double> stage_ms;
 };
@@ -115,6 +118,11 @@ std::vector<AutoRun> RunRoom(const BenchRobot& robot, const BenchRobot* other, s
                          [&](const FoundInstance& f) { return add_to(f.report.T_world_base, a) <= add_m; });
     };
     for (const auto* a : requested) r.arms_found += found_within(*a, kSuccessAddM), r.arms_near += found_within(*a, kWrongAddM);
+    for (const auto* a : requested) {
+      double fit = std::numeric_limits<double>::infinity();
+      for (const auto& f : report->instances) fit = std::min(fit, add_to(f.report.T_world_base, *a));
+      r.arm_mesh_and_fit.push_back({a->mesh_error_add_m >= 0 ? a->mesh_error_add_m : std::nan(""), fit});
+    }
     runs.push_back(r);
   }
   spdlog::info("bench: auto: {} {} room {} ({} arms{}, {} triangles) done", robot.label, label.mesher, index, arms,
@@ -155,18 +163,53 @@ void Row(std::ostream& md, const std::string& method, const std::string& robot, 
                     Pct(both_near, two), mean_found, Quantile(ms, 0.5), Quantile(ms, 0.95), errors);
 }
 
+// Arms by where the headset's errors put them in the map (their mesh error): a fit that explains
+// the map perfectly lands there, so an arm whose mesh error is over 10 mm cannot be fitted within
+// 10 mm by any method; those under it measure the method.
+void MeshErrorSection(std::ostream& md, const std::vector<AutoRun>& runs, const std::vector<std::string>& methods) {
+  md << "\n## The mesh's error or the method's? (every requested arm)\n\n"
+        "mesh error: the ADD of the rigid motion by which the headset's errors moved the arm in the map "
+        "(per-view tracking error and, on Open3D, the surfaces' own errors); an arm fitted perfectly to the map lands "
+        "there.\n\n| method | mesher | arms | mesh error median mm | mesh error <= 5 mm: fitted within 10 mm | "
+        "5-10 mm: within 10 mm | > 10 mm | not measured |\n|---|---|---|---|---|---|---|---|\n";
+  for (const auto& m : methods)
+    for (const std::string mesher : {"own", "open3d", "all"}) {
+      std::vector<double> mesh;
+      std::size_t arms = 0, low = 0, low_fit = 0, mid = 0, mid_fit = 0, high = 0, unmeasured = 0;
+      for (const AutoRun& r : runs) {
+        if (!r.ok || r.method != m || (mesher != "all" && r.mesher != mesher)) continue;
+        for (const auto& [e, fit] : r.arm_mesh_and_fit) {
+          ++arms;
+          if (std::isnan(e)) {
+            ++unmeasured;
+            continue;
+          }
+          mesh.push_back(e * 1e3);
+          if (e <= 0.005) ++low, low_fit += fit <= kSuccessAddM;
+          else if (e <= kSuccessAddM) ++mid, mid_fit += fit <= kSuccessAddM;
+          else ++high;
+        }
+      }
+      if (arms == 0) continue;
+      md << fmt::format("| {} | {} | {} | {:.1f} | {} | {} | {} | {} |\n", m, mesher, arms, Quantile(mesh, 0.5), Pct(low_fit, low),
+                        Pct(mid_fit, mid), high, unmeasured);
+    }
+}
+
 Status Write(const Config& config, const std::vector<AutoRun>& runs, const std::vector<std::string>& methods,
              const std::vector<std::string>& robots) {
   const std::string& dir = config.out_dir;
   std::ofstream csv(dir + "/auto_runs.csv");
   if (!csv) return Status::IoError("cannot write " + dir + "/auto_runs.csv");
-  csv << "method,robot,mesher,arms,other,room,triangles,error,status,primary_add_mm,instances,arms_found,arms_found_20mm,wrong_ok,candidates,ms,stages\n";
+  csv << "method,robot,mesher,arms,other,room,triangles,error,status,primary_add_mm,instances,arms_found,arms_found_20mm,wrong_ok,candidates,ms,stages,arm_mesh_error_mm,arm_fit_add_mm\n";
   for (const AutoRun& r : runs) {
     std::string stages;
     for (const auto& [s, ms] : r.stage_ms) stages += fmt::format("{}={:.1f};", s, ms);
-    csv << fmt::format("{},{},{},{},{},{},{},\"{}\",{},{:.2f},{},{},{},{},{},{:.1f},{}\n", r.method, r.robot, r.mesher, r.arms,
+    std::string mesh, fit;  // per requested arm, ';'-separated
+    for (const auto& [m, f] : r.arm_mesh_and_fit) mesh += fmt::format("{:.2f};", m * 1e3), fit += fmt::format("{:.2f};", f * 1e3);
+    csv << fmt::format("{},{},{},{},{},{},{},\"{}\",{},{:.2f},{},{},{},{},{},{:.1f},{},{},{}\n", r.method, r.robot, r.mesher, r.arms,
                        r.other, r.room, r.triangles, r.error, r.status, r.primary_add_m * 1e3, r.instances, r.arms_found,
-                       r.arms_near, r.wrong_ok, r.candidates, r.ms, stages);
+                       r.arms_near, r.wrong_ok, r.candidates, r.ms, stages, mesh, fit);
   }
   std::ofstream md(dir + "/auto.md");
   if (!md) return Status::IoError("cannot write " + dir + "/auto.md");
@@ -190,6 +233,7 @@ Status Write(const Config& config, const std::vector<AutoRun>& runs, const std::
     for (const auto& mesher : config.robustness.meshers) Row(md, m, "all", mesher, select(m, "all", mesher));
     Row(md, m, "all", "all", select(m, "all", "all"));
   }
+  MeshErrorSection(md, runs, methods);
   md << "\n## Where arref-auto's time goes (median ms per stage)\n\n| stage | median ms | p95 ms |\n|---|---|---|\n";
   std::map<std::string, std::vector<double>> per_stage;
   std::vector<double> tris;

@@ -39,6 +39,11 @@ struct RoomArm {
   JointValues joints;              // complete
   double pedestal_m = 0.0;         // 0: on the floor
   std::string placement;           // "wall", "table" or "open"
+  // Where the headset's errors put this arm in the map (cell_simulator.h's mesh error: per-view
+  // tracking error and, on the device's mesher, per-surface errors), for requested arms; unset
+  // when too little of it was seen.
+  std::optional<Iso3> T_world_base_mesh;
+  double mesh_error_add_m = -1.0;  // the ADD of that motion; -1: not measured
 };
 
 struct SimulatedRoom {

@@ -286,5 +286,41 @@ TEST(Bench, RobustnessSendsTheWearersPathWhenAsked) {
   }
 }
 
+// The auto experiment's diagnostics: each requested arm's mesh error (where the headset's errors
+// put it in the room's map), arref-icp seeded at each arm's true pose (--auto-truth-seeds), and a
+// headset error taken out of every room (--robust-without).
+TEST(Bench, AutoMeasuresEachArmsMeshErrorAndTheFitFromItsTruth) {
+  for (const bool jitter : {true, false}) {
+    SCOPED_TRACE(jitter ? "with the views' tracking error" : "--robust-without view-jitter");
+    const std::string out = ::testing::TempDir() + "/arref_bench_auto_truth";
+    std::filesystem::remove_all(out);
+    const auto r = testing::RunCommand(std::string(ARREF_BINARY_DIR) +
+                                       "/clients/cli/arref bench --only auto --robots builtin --meshers own --auto-rooms 1 "
+                                       "--auto-arms 2 --auto-methods arref-icp --auto-truth-seeds --jobs 2 --out " + out +
+                                       (jitter ? "" : " --robust-without view-jitter"));
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    const Table runs = ReadCsv(out + "/auto_runs.csv");
+    ASSERT_EQ(runs.size(), 1u);
+    const auto& run = runs.front();
+    EXPECT_EQ(run.at("instances"), "2") << "one seeded request per arm, each fit kept";
+    std::stringstream mesh(run.at("arm_mesh_error_mm")), fit(run.at("arm_fit_add_mm")), method(run.at("arm_method_error_mm"));
+    int arms = 0;
+    for (std::string m, f, e; std::getline(mesh, m, ';') && std::getline(fit, f, ';') && std::getline(method, e, ';'); ++arms) {
+      const double mesh_mm = Number(m, "mesh error"), fit_mm = Number(f, "fit"), method_mm = Number(e, "method error");
+      if (jitter) EXPECT_GT(mesh_mm, 0.5);
+      else EXPECT_LT(mesh_mm, 0.01);
+      EXPECT_LT(mesh_mm, 20.0);
+      EXPECT_LE(fit_mm, 20.0) << "seeded at its truth, the arm is fitted there";
+      EXPECT_LE(method_mm, 20.0);
+    }
+    EXPECT_EQ(arms, 2);
+    std::ifstream md(out + "/auto.md");
+    const std::string report((std::istreambuf_iterator<char>(md)), std::istreambuf_iterator<char>());
+    EXPECT_NE(report.find("The mesh's error or the method's?"), std::string::npos);
+    EXPECT_NE(report.find("true pose (a diagnostic)"), std::string::npos);
+    EXPECT_EQ(report.find("taken out of every room") != std::string::npos, !jitter);
+  }
+}
+
 }  // namespace
 }  // namespace arref

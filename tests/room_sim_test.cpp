@@ -63,6 +63,20 @@ TEST(RoomSimulator, TwoArmsLieOnTheMappedMeshWhereTheTruthSays) {
   EXPECT_GT((room.arms[0].T_world_base.translation() - room.arms[1].T_world_base.translation()).norm(), 0.3);
 }
 
+TEST(RoomSimulator, WithoutHeadTrackingErrorTheMapPutsTheArmWhereItStands) {
+  RoomOptions options;
+  options.max_side_m = 6.0;
+  ASSERT_OK_AND_ASSIGN(const SimulatedRoom with, SimulateRoom({&BuiltinRobot(), nullptr}, options, 11));
+  options.without = {"view-jitter"};
+  ASSERT_OK_AND_ASSIGN(const SimulatedRoom without, SimulateRoom({&BuiltinRobot(), nullptr}, options, 11));
+  // The same room and arm; only the views' tracking error is gone, and with it the mesh error.
+  ASSERT_EQ(without.arms.size(), 1u);
+  EXPECT_TRUE(without.arms[0].T_world_base.isApprox(with.arms[0].T_world_base));
+  EXPECT_GT(with.arms[0].mesh_error_add_m, 0.0005);
+  EXPECT_GE(without.arms[0].mesh_error_add_m, 0.0);
+  EXPECT_LT(without.arms[0].mesh_error_add_m, 1e-6);
+}
+
 TEST(RoomSimulator, SameSeedSameRoomAndNoArmWhenNoneIsAsked) {
   RoomOptions options;
   options.arms = 0;
@@ -86,6 +100,11 @@ TEST(RoomSimulator, RefusesBadOptions) {
   options.max_side_m = 30;
   const auto st = SimulateRoom({&BuiltinRobot(), nullptr}, options, 1).status();
   EXPECT_NE(st.ToString().find("room sides"), std::string::npos) << st.ToString();
+  options.max_side_m = 10;
+  options.without = {"sunlight"};
+  const auto unknown = SimulateRoom({&BuiltinRobot(), nullptr}, options, 1).status();
+  EXPECT_EQ(unknown.code(), StatusCode::kInvalidArgument);
+  EXPECT_NE(unknown.ToString().find("sunlight"), std::string::npos) << unknown.ToString();
 }
 
 }  // namespace

@@ -51,6 +51,7 @@ struct BenchArgs {
   std::string auto_methods = "arref-auto,sliding-box-shot,super4pcs,fpfh-ransac";
   int auto_rooms = 2;
   std::vector<int> auto_arms = {0, 1, 2};
+  bool auto_truth_seeds = false;
   bench::TrackConfig track;
   std::string command_line;
 };
@@ -101,7 +102,7 @@ int Run(const BenchArgs& args) {
   auto auto_methods = ParseMethodList(args.auto_methods, "--auto-methods");
   if (!auto_methods.ok()) return Fail(auto_methods.status());
   config.auto_methods = *auto_methods, config.auto_rooms = args.auto_rooms;
-  config.auto_arms = args.auto_arms;
+  config.auto_arms = args.auto_arms, config.auto_truth_seeds = args.auto_truth_seeds;
   rc.robots = args.robots;
   config.track = args.track;
   if (rc.robots.empty()) {
@@ -225,8 +226,8 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
   cmd->add_option("--robust-seeds", args->robust_seeds, "Robustness: seeds per family and cell (--quick: 1)")
       ->check(CLI::Range(1, 1000))->capture_default_str();
   cmd->add_option("--robust-without", args->robust_without,
-                  "Robustness: headset errors to take out of every cell, to measure what each costs (view-jitter, "
-                  "surface-errors, depth-noise, patches, quantisation)")
+                  "Robustness and auto: headset errors to take out of every cell or room, to measure what each costs "
+                  "(view-jitter, surface-errors, depth-noise, patches, quantisation)")
       ->delimiter(',')->check(CLI::IsMember({"view-jitter", "surface-errors", "depth-noise", "patches", "quantisation"}));
   cmd->add_option("--mapping-motion", args->mapping_motion,
                   "Robustness: joints that swing while the cell is mapped, so the map smears the arm (none; wrist: the "
@@ -247,6 +248,9 @@ void AddBenchCommand(CLI::App& app, int* exit_code) {
   cmd->add_option("--auto-arms", args->auto_arms,
                   "Auto experiment: the arm counts run, comma-separated (0: rooms without the requested arm)")
       ->delimiter(',')->check(CLI::Range(0, 2));
+  cmd->add_flag("--auto-truth-seeds", args->auto_truth_seeds,
+                "Auto experiment: seeded methods (e.g. arref-icp) start at each requested arm's true pose, one request "
+                "per arm, instead of the map's centre: the fit's own error on a room's map");
   cmd->add_option("--track-kinds", args->track.kinds, "Track: frame kinds (long-throw, ahat)")
       ->delimiter(',')->check(CLI::IsMember({"long-throw", "ahat"}));
   cmd->add_option("--track-streams", args->track.streams, "Track: streams per robot and frame kind (0: only the long streams)")

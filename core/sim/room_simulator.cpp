@@ -393,7 +393,12 @@ Result<SimulatedRoom> SimulateRoom(const RoomRobots& robots, const RoomOptions& 
   std::mt19937_64 rng(rng_seed);
   SimulatedRoom room;
   room.mesher = options.mesher;
-  room.device = DrawDeviceVariation(rng_seed);
+  // The headset's errors a diagnostic takes out (LeaveOutErrors), into the scan and the device.
+  SimOptions errors;
+  errors.fusion.mesher = options.mesher;
+  errors.fusion.device = DrawDeviceVariation(rng_seed);
+  ARREF_RETURN_IF_ERROR(LeaveOutErrors(options.without, rng_seed, &errors));
+  room.device = *errors.fusion.device;
   room.room_size_m = Vec3(U(options.min_side_m, options.max_side_m)(rng), U(options.min_side_m, options.max_side_m)(rng),
                           U(options.min_height_m, options.max_height_m)(rng));
   room.T_world_room = MakeYawPose(U(-3, 3)(rng), U(-3, 3)(rng), U(-1.6, -1.2)(rng), U(0, 2 * std::numbers::pi)(rng));
@@ -435,7 +440,7 @@ Result<SimulatedRoom> SimulateRoom(const RoomRobots& robots, const RoomOptions& 
   AddClutter(l, std::uniform_int_distribution<int>(3, 6 + area_m2 / 8)(rng));
   room.props = l.props;
 
-  ScanOptions scan;
+  ScanOptions scan = errors.scan;
   double arc = U(120, 300)(rng), distance = U(1.2, 2.2)(rng);
   if (options.mesher == Mesher::kOpen3d) {
     scan.depth_noise_m = room.device.depth_noise_m;

@@ -36,18 +36,43 @@ struct AutoRun {
   double primary_add_m = std::nan("");  // the primary instance to the nearest requested arm
   int instances = 0, arms_found = 0, wrong_ok = 0, candidates = 0;
   int arms_near = 0;  // arms within kWrongAddM of an instance: found, if not within kSuccessAddM
-  // Per requested arm: its mesh error (sim::RoomArm::mesh_error_add_m; NaN: not measured) and
-  // the ADD of the instance nearest it (inf: no instance).
-  std::vector<std::pair<double, double>> arm_mesh_and_fit;
+  // Per requested arm: its mesh error (sim::RoomArm::mesh_error_add_m; NaN: not measured), the
+  // ADD of the instance nearest it (inf: no instance), and that instance's ADD against where the
+  // mesh put the arm: what the method adds (NaN: not measured or no instance).
+  struct ArmFit {
+    double mesh = std::nan(""), fit = std::numeric_limits<double>::infinity(), method = std::nan("");
+  };
+  std::vector<ArmFit> arm_fits;
   double ms = 0;
   std::map<std::string, double> stage_ms;
 };
 
 
+bool IsSeeded(Method m) { return m != Method::kArrefAuto && m != Method::kSlidingBoxShot; }
+
+// A seeded method run as a seeded request at each requested arm's true pose (--auto-truth-seeds):
+// no search, so what is left is the fit's own error on the room's map, as the robustness
+// experiment's truth seeds measure it on cells.
+Result<WholeMapReport> SeededAtEachArm(const RobotSide& side, const TriangleMesh& scene,
+                                       const std::vector<const sim::RoomArm*>& arms, const RegistrationOptions& o) {
+  WholeMapReport out;
+  out.method = MethodName(o.method);
+  for (const sim::RoomArm* a : arms) {
+    ARREF_ASSIGN_OR_RETURN(RegistrationReport report, RegisterScene(side, scene, a->T_world_base, o));
+    for (const auto& t : report.timings) out.timings.push_back(t);
+    if (report.status != ResultStatus::kFailed) out.instances.push_back({std::move(report)});
+  }
+  out.candidates = static_cast<int>(arms.size());
+  out.primary = out.instances.empty() ? -1 : 0;
+  if (!out.instances.empty()) out.status = out.instances.front().report.status;
+  return out;
+}
+
 // One room, every method: simulate, build the robot side once (untimed, as the server caches it),
 // then each method over the whole map against the room's ground truth.
 std::vector<AutoRun> RunRoom(const BenchRobot& robot, const BenchRobot* other, sim::Mesher mesher, int arms, int index,
-                             std::uint64_t seed, const std::vector<std::string>& methods, bool head_path) {
+                             std::uint64_t seed, const Config& config) {
+  const std::vector<std::string>& methods = config.auto_methods;
   AutoRun label;
   label.robot = robot.label, label.mesher = sim::MesherName(mesher), label.arms = arms, label.room = index;
   label.other = other ? other->label : "";
@@ -62,6 +87,7 @@ std::vector<AutoRun> RunRoom(const BenchRobot& robot, const BenchRobot* other, s
   };
   sim::RoomOptions options;
   options.arms = arms, options.other_arm = other != nullptr, options.mesher = mesher;
+  options.without = config.robustness.without;
   auto room = sim::SimulateRoom({robot.model.get(), other ? other->model.get() : nullptr}, options, seed);
   if (!room.ok()) return fail_all(room.status());
   SpatialMesh map;
@@ -84,8 +110,9 @@ std::vector<AutoRun> RunRoom(const BenchRobot& robot, const BenchRobot* other, s
     r.method = method;
     RegistrationOptions o;
     o.method = *ParseMethod(method);  // checked by the command
-    if (head_path) o.head_path_world = room->head_path_world;
-    auto report = RegisterWholeMap(**side, scene, o);
+    if (config.head_path) o.head_path_world = room->head_path_world;
+    auto report = config.auto_truth_seeds && IsSeeded(o.method) ? SeededAtEachArm(**side, scene, requested, o)
+                                                                : RegisterWholeMap(**side, scene, o);
     if (!report.ok()) {
       r.error = report.status().ToString();
       runs.push_back(r);
@@ -119,9 +146,15 @@ std::vector<AutoRun> RunRoom(const BenchRobot& robot, const BenchRobot* other, s
     };
     for (const auto* a : requested) r.arms_found += found_within(*a, kSuccessAddM), r.arms_near += found_within(*a, kWrongAddM);
     for (const auto* a : requested) {
-      double fit = std::numeric_limits<double>::infinity();
-      for (const auto& f : report->instances) fit = std::min(fit, add_to(f.report.T_world_base, *a));
-      r.arm_mesh_and_fit.push_back({a->mesh_error_add_m >= 0 ? a->mesh_error_add_m : std::nan(""), fit});
+      AutoRun::ArmFit arm;
+      const FoundInstance* nearest = nullptr;
+      for (const auto& f : report->instances)
+        if (const double add = add_to(f.report.T_world_base, *a); add < arm.fit) arm.fit = add, nearest = &f;
+      if (a->T_world_base_mesh) {
+        arm.mesh = a->mesh_error_add_m;
+        if (nearest) arm.method = ComparePoses(nearest->report.T_world_base, *a->T_world_base_mesh, points).add_m;
+      }
+      r.arm_fits.push_back(arm);
     }
     runs.push_back(r);
   }
@@ -171,28 +204,30 @@ void MeshErrorSection(std::ostream& md, const std::vector<AutoRun>& runs, const 
         "mesh error: the ADD of the rigid motion by which the headset's errors moved the arm in the map "
         "(per-view tracking error and, on Open3D, the surfaces' own errors); an arm fitted perfectly to the map lands "
         "there.\n\n| method | mesher | arms | mesh error median mm | mesh error <= 5 mm: fitted within 10 mm | "
-        "5-10 mm: within 10 mm | > 10 mm | not measured |\n|---|---|---|---|---|---|---|---|\n";
+        "5-10 mm: within 10 mm | > 10 mm | not measured | the fit's ADD from where the mesh put the arm, median mm |\n"
+        "|---|---|---|---|---|---|---|---|---|\n";
   for (const auto& m : methods)
     for (const std::string mesher : {"own", "open3d", "all"}) {
-      std::vector<double> mesh;
+      std::vector<double> mesh, added;
       std::size_t arms = 0, low = 0, low_fit = 0, mid = 0, mid_fit = 0, high = 0, unmeasured = 0;
       for (const AutoRun& r : runs) {
         if (!r.ok || r.method != m || (mesher != "all" && r.mesher != mesher)) continue;
-        for (const auto& [e, fit] : r.arm_mesh_and_fit) {
+        for (const auto& [e, fit, method] : r.arm_fits) {
           ++arms;
           if (std::isnan(e)) {
             ++unmeasured;
             continue;
           }
           mesh.push_back(e * 1e3);
+          if (!std::isnan(method)) added.push_back(method * 1e3);
           if (e <= 0.005) ++low, low_fit += fit <= kSuccessAddM;
           else if (e <= kSuccessAddM) ++mid, mid_fit += fit <= kSuccessAddM;
           else ++high;
         }
       }
       if (arms == 0) continue;
-      md << fmt::format("| {} | {} | {} | {:.1f} | {} | {} | {} | {} |\n", m, mesher, arms, Quantile(mesh, 0.5), Pct(low_fit, low),
-                        Pct(mid_fit, mid), high, unmeasured);
+      md << fmt::format("| {} | {} | {} | {:.1f} | {} | {} | {} | {} | {:.1f} |\n", m, mesher, arms, Quantile(mesh, 0.5),
+                        Pct(low_fit, low), Pct(mid_fit, mid), high, unmeasured, Quantile(added, 0.5));
     }
 }
 
@@ -201,15 +236,16 @@ Status Write(const Config& config, const std::vector<AutoRun>& runs, const std::
   const std::string& dir = config.out_dir;
   std::ofstream csv(dir + "/auto_runs.csv");
   if (!csv) return Status::IoError("cannot write " + dir + "/auto_runs.csv");
-  csv << "method,robot,mesher,arms,other,room,triangles,error,status,primary_add_mm,instances,arms_found,arms_found_20mm,wrong_ok,candidates,ms,stages,arm_mesh_error_mm,arm_fit_add_mm\n";
+  csv << "method,robot,mesher,arms,other,room,triangles,error,status,primary_add_mm,instances,arms_found,arms_found_20mm,wrong_ok,candidates,ms,stages,arm_mesh_error_mm,arm_fit_add_mm,arm_method_error_mm\n";
   for (const AutoRun& r : runs) {
     std::string stages;
     for (const auto& [s, ms] : r.stage_ms) stages += fmt::format("{}={:.1f};", s, ms);
-    std::string mesh, fit;  // per requested arm, ';'-separated
-    for (const auto& [m, f] : r.arm_mesh_and_fit) mesh += fmt::format("{:.2f};", m * 1e3), fit += fmt::format("{:.2f};", f * 1e3);
-    csv << fmt::format("{},{},{},{},{},{},{},\"{}\",{},{:.2f},{},{},{},{},{},{:.1f},{},{},{}\n", r.method, r.robot, r.mesher, r.arms,
+    std::string mesh, fit, method;  // per requested arm, ';'-separated
+    for (const auto& a : r.arm_fits)
+      mesh += fmt::format("{:.2f};", a.mesh * 1e3), fit += fmt::format("{:.2f};", a.fit * 1e3), method += fmt::format("{:.2f};", a.method * 1e3);
+    csv << fmt::format("{},{},{},{},{},{},{},\"{}\",{},{:.2f},{},{},{},{},{},{:.1f},{},{},{},{}\n", r.method, r.robot, r.mesher, r.arms,
                        r.other, r.room, r.triangles, r.error, r.status, r.primary_add_m * 1e3, r.instances, r.arms_found,
-                       r.arms_near, r.wrong_ok, r.candidates, r.ms, stages, mesh, fit);
+                       r.arms_near, r.wrong_ok, r.candidates, r.ms, stages, mesh, fit, method);
   }
   std::ofstream md(dir + "/auto.md");
   if (!md) return Status::IoError("cannot write " + dir + "/auto.md");
@@ -219,6 +255,9 @@ Status Write(const Config& config, const std::vector<AutoRun>& runs, const std::
         "whose result is FAILED; both found: 2-arm rooms with both arms within 10 mm of an instance; the 20 mm "
         "columns count the same within 20 mm (the arm found, its fit not within 10 mm); ms: the whole request "
         "(robot side cached), median and p95.\n\n";
+  if (!config.robustness.without.empty())
+    md << fmt::format("Headset errors taken out of every room (a diagnostic): {}.\n\n", fmt::join(config.robustness.without, ", "));
+  if (config.auto_truth_seeds) md << "Seeded methods start at each requested arm's true pose (a diagnostic).\n\n";
   md << "| method | robot | mesher | rooms | success | within 20 mm | wrong OK | empty FAILED | both found | both within 20 mm | "
         "instances (mean) | ms median | ms p95 | errors |\n|---|---|---|---|---|---|---|---|---|---|---|---|---|---|\n";
   auto select = [&](const std::string& m, const std::string& robot, const std::string& mesher) {
@@ -284,7 +323,7 @@ Status AutoExperiment(const Config& config, Tables* tables) {
     const Task& k = tasks[t];
     // Every other room holds an arm of the next robot too, when there is another.
     const BenchRobot* other = robots.size() > 1 && k.index % 2 == 1 ? &robots[(k.robot + 1) % robots.size()] : nullptr;
-    results[t] = RunRoom(robots[k.robot], other, k.mesher, k.arms, k.index, k.seed, config.auto_methods, config.head_path);
+    results[t] = RunRoom(robots[k.robot], other, k.mesher, k.arms, k.index, k.seed, config);
   };
   if (config.jobs <= 1) {
     for (std::size_t t = 0; t < tasks.size(); ++t) one(t);

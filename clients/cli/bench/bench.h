@@ -104,6 +104,9 @@ struct Config {
   std::vector<std::string> auto_methods = {"arref-auto", "sliding-box-shot", "super4pcs", "fpfh-ransac"};
   int auto_rooms = 2;  // per robot, arm count (0, 1, 2) and mesher
   std::vector<int> auto_arms = {0, 1, 2};  // the arm counts run (0 alone: only rooms without the arm)
+  // Seeded methods start at each requested arm's true pose instead of the map's centre: a
+  // diagnostic of the fit's own error in rooms (robustness's truth seeds, for rooms).
+  bool auto_truth_seeds = false;
   TrackConfig track;
 };
 

@@ -29,6 +29,9 @@ struct RoomOptions {
   // kOwn: the voxel (0: the small configuration's, about 3.5 cm); depth noise and head-pose
   // error as ScanOptions' defaults. kOpen3d: a DeviceVariation drawn from the room's seed.
   double voxel_m = 0.0;
+  // Headset errors taken out of the room's map (LeaveOutErrors' names: view-jitter,
+  // surface-errors, depth-noise, patches, quantisation), to measure what each costs.
+  std::vector<std::string> without;
 };
 
 // What stands where: every arm with its ground truth.

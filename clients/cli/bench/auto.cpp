@@ -38,9 +38,10 @@ struct AutoRun {
   int arms_near = 0;  // arms within kWrongAddM of an instance: found, if not within kSuccessAddM
   // Per requested arm: its mesh error (sim::RoomArm::mesh_error_add_m; NaN: not measured), the
   // ADD of the instance nearest it (inf: no instance), and that instance's ADD against where the
-  // mesh put the arm: what the method adds (NaN: not measured or no instance).
+  // mesh put the arm: what the method adds (NaN: not measured or no instance), and that
+  // instance's expected error (FitPrecision; NaN: no instance).
   struct ArmFit {
-    double mesh = std::nan(""), fit = std::numeric_limits<double>::infinity(), method = std::nan("");
+    double mesh = std::nan(""), fit = std::numeric_limits<double>::infinity(), method = std::nan(""), expected = std::nan("");
   };
   std::vector<ArmFit> arm_fits;
   double ms = 0;
@@ -150,6 +151,7 @@ std::vector<AutoRun> RunRoom(const BenchRobot& robot, const BenchRobot* other, s
       const FoundInstance* nearest = nullptr;
       for (const auto& f : report->instances)
         if (const double add = add_to(f.report.T_world_base, *a); add < arm.fit) arm.fit = add, nearest = &f;
+      if (nearest && nearest->report.precision.valid) arm.expected = nearest->report.precision.expected_error_m;
       if (a->T_world_base_mesh) {
         arm.mesh = a->mesh_error_add_m;
         if (nearest) arm.method = ComparePoses(nearest->report.T_world_base, *a->T_world_base_mesh, points).add_m;
@@ -204,15 +206,17 @@ void MeshErrorSection(std::ostream& md, const std::vector<AutoRun>& runs, const 
         "mesh error: the ADD of the rigid motion by which the headset's errors moved the arm in the map "
         "(per-view tracking error and, on Open3D, the surfaces' own errors); an arm fitted perfectly to the map lands "
         "there.\n\n| method | mesher | arms | mesh error median mm | mesh error <= 5 mm: fitted within 10 mm | "
-        "5-10 mm: within 10 mm | > 10 mm | not measured | the fit's ADD from where the mesh put the arm, median mm |\n"
-        "|---|---|---|---|---|---|---|---|---|\n";
+        "5-10 mm: within 10 mm | > 10 mm | not measured | the fit's ADD from where the mesh put the arm, median mm | "
+        "ADD <= 2x the instance's expected error |\n|---|---|---|---|---|---|---|---|---|---|\n";
   for (const auto& m : methods)
     for (const std::string mesher : {"own", "open3d", "all"}) {
       std::vector<double> mesh, added;
+      std::size_t rated = 0, within_twice = 0;  // arms with an instance that states its expected error
       std::size_t arms = 0, low = 0, low_fit = 0, mid = 0, mid_fit = 0, high = 0, unmeasured = 0;
       for (const AutoRun& r : runs) {
         if (!r.ok || r.method != m || (mesher != "all" && r.mesher != mesher)) continue;
-        for (const auto& [e, fit, method] : r.arm_fits) {
+        for (const auto& [e, fit, method, expected] : r.arm_fits) {
+          if (!std::isnan(expected) && std::isfinite(fit)) ++rated, within_twice += fit <= 2 * expected;
           ++arms;
           if (std::isnan(e)) {
             ++unmeasured;
@@ -226,8 +230,8 @@ void MeshErrorSection(std::ostream& md, const std::vector<AutoRun>& runs, const 
         }
       }
       if (arms == 0) continue;
-      md << fmt::format("| {} | {} | {} | {:.1f} | {} | {} | {} | {} | {:.1f} |\n", m, mesher, arms, Quantile(mesh, 0.5),
-                        Pct(low_fit, low), Pct(mid_fit, mid), high, unmeasured, Quantile(added, 0.5));
+      md << fmt::format("| {} | {} | {} | {:.1f} | {} | {} | {} | {} | {:.1f} | {} |\n", m, mesher, arms, Quantile(mesh, 0.5),
+                        Pct(low_fit, low), Pct(mid_fit, mid), high, unmeasured, Quantile(added, 0.5), Pct(within_twice, rated));
     }
 }
 
@@ -236,16 +240,18 @@ Status Write(const Config& config, const std::vector<AutoRun>& runs, const std::
   const std::string& dir = config.out_dir;
   std::ofstream csv(dir + "/auto_runs.csv");
   if (!csv) return Status::IoError("cannot write " + dir + "/auto_runs.csv");
-  csv << "method,robot,mesher,arms,other,room,triangles,error,status,primary_add_mm,instances,arms_found,arms_found_20mm,wrong_ok,candidates,ms,stages,arm_mesh_error_mm,arm_fit_add_mm,arm_method_error_mm\n";
+  csv << "method,robot,mesher,arms,other,room,triangles,error,status,primary_add_mm,instances,arms_found,arms_found_20mm,wrong_ok,candidates,ms,stages,arm_mesh_error_mm,arm_fit_add_mm,arm_method_error_mm,arm_expected_error_mm\n";
   for (const AutoRun& r : runs) {
     std::string stages;
     for (const auto& [s, ms] : r.stage_ms) stages += fmt::format("{}={:.1f};", s, ms);
-    std::string mesh, fit, method;  // per requested arm, ';'-separated
-    for (const auto& a : r.arm_fits)
-      mesh += fmt::format("{:.2f};", a.mesh * 1e3), fit += fmt::format("{:.2f};", a.fit * 1e3), method += fmt::format("{:.2f};", a.method * 1e3);
-    csv << fmt::format("{},{},{},{},{},{},{},\"{}\",{},{:.2f},{},{},{},{},{},{:.1f},{},{},{},{}\n", r.method, r.robot, r.mesher, r.arms,
+    std::string mesh, fit, method, expected;  // per requested arm, ';'-separated
+    for (const auto& a : r.arm_fits) {
+      mesh += fmt::format("{:.2f};", a.mesh * 1e3), fit += fmt::format("{:.2f};", a.fit * 1e3);
+      method += fmt::format("{:.2f};", a.method * 1e3), expected += fmt::format("{:.2f};", a.expected * 1e3);
+    }
+    csv << fmt::format("{},{},{},{},{},{},{},\"{}\",{},{:.2f},{},{},{},{},{},{:.1f},{},{},{},{},{}\n", r.method, r.robot, r.mesher, r.arms,
                        r.other, r.room, r.triangles, r.error, r.status, r.primary_add_m * 1e3, r.instances, r.arms_found,
-                       r.arms_near, r.wrong_ok, r.candidates, r.ms, stages, mesh, fit, method);
+                       r.arms_near, r.wrong_ok, r.candidates, r.ms, stages, mesh, fit, method, expected);
   }
   std::ofstream md(dir + "/auto.md");
   if (!md) return Status::IoError("cannot write " + dir + "/auto.md");

@@ -330,6 +330,29 @@ TEST(ServerIntegration, ARequestWithNoSeedFindsBothArmsOfARoom) {
   }
 }
 
+// The mock headset's --room: a whole simulated room mapped and referenced with no seed through the
+// real server process, every instance printed with its error; a room without the arm is FAILED.
+TEST(ServerIntegration, TheMockHeadsetReferencesARoomWithNoSeed) {
+  ServerProcess server;
+  const std::string base = kMockPath + " --port " + std::to_string(server.port()) + " --room --rng-seed 4 --timeout 120";
+  const auto two = arref::testing::RunCommand(base + " --room-arms 2");
+  ASSERT_EQ(two.exit_code, 0) << two.out << two.err;
+  int near = 0;  // instances within 20 mm of an arm
+  for (std::size_t at = two.out.find(" mm from the nearest arm"); at != std::string::npos;
+       at = two.out.find(" mm from the nearest arm", at + 1)) {
+    const std::size_t start = two.out.rfind(", ", at) + 2;
+    near += std::stod(two.out.substr(start, at - start)) < 20.0;
+  }
+  EXPECT_GE(near, 2) << two.out;
+  EXPECT_NE(two.out.find("* instance"), std::string::npos) << "the primary instance is marked\n" << two.out;
+  EXPECT_NE(two.out.find("vs truth: ADD"), std::string::npos) << two.out;
+  const auto none = arref::testing::RunCommand(base + " --room-arms 0");
+  EXPECT_EQ(none.exit_code, 0) << none.out << none.err;
+  EXPECT_NE(none.out.find("RESULT_STATUS_FAILED"), std::string::npos) << none.out;
+  EXPECT_NE(none.out.find("FAILED with no instance, as it should"), std::string::npos) << none.out;
+  ASSERT_TRUE(server.alive());
+}
+
 TEST(ServerIntegration, AMapOverTheLimitIsRefusedAndKeepsItsSurfaces) {
   ServerSettings settings;
   settings.max_map_triangles = 1000;

@@ -15,6 +15,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstring>
+#include <limits>
 #include <nlohmann/json.hpp>
 #include <map>
 #include <thread>
@@ -23,6 +24,7 @@
 #include "arref/base/clock.h"
 #include "arref/pipeline/pipeline.h"
 #include "arref/sim/cell_simulator.h"
+#include "arref/sim/room_simulator.h"
 #include "client_io.h"
 
 namespace arref::headset {
@@ -190,6 +192,25 @@ Result<HeadsetScene> SimulatedScene(std::uint64_t rng_seed) {
   scene.joints = cell->joints;
   scene.head_path_world = cell->head_path_world;
   ARREF_ASSIGN_OR_RETURN(PointCloud model, SampleRobot(robot, cell->joints, 5000, 7));
+  scene.model_points = std::move(model.points);
+  return scene;
+}
+
+Result<HeadsetScene> SimulatedRoomScene(std::uint64_t rng_seed, int arms, const std::string& mesher) {
+  ARREF_ASSIGN_OR_RETURN(const std::string urdf, BuiltinRobotUrdf());
+  ARREF_ASSIGN_OR_RETURN(const RobotModel robot, RobotModel::Load(urdf));
+  sim::RoomOptions options;
+  options.arms = arms;
+  ARREF_ASSIGN_OR_RETURN(options.mesher, sim::ParseMesher(mesher));
+  auto room = sim::SimulateRoom({&robot, nullptr}, options, rng_seed);
+  if (!room.ok()) return room.status().WithContext("simulating a room");
+  HeadsetScene scene;
+  scene.surfaces = std::move(room->surfaces);
+  scene.head_path_world = room->head_path_world;
+  for (const sim::RoomArm& arm : room->arms) scene.arms_true.push_back(arm.T_world_base);
+  // The arms share one joint state; with none, the robot's zero pose (a room without the arm).
+  if (!room->arms.empty()) scene.joints = room->arms.front().joints;
+  ARREF_ASSIGN_OR_RETURN(PointCloud model, SampleRobot(robot, scene.joints, 5000, 7));
   scene.model_points = std::move(model.points);
   return scene;
 }
@@ -382,7 +403,8 @@ class Runner {
   }
 
   bool SendSeedAndJoints() {
-    if (!SendSeed(o_.seed_index)) return false;
+    // A scene without seeds (a room) sends none: each request searches the whole map.
+    if (!scene_.seeds.empty() && !SendSeed(o_.seed_index)) return false;
     if (scene_.joints.empty()) return true;
     pb::ClientMessage j;
     j.mutable_joint_state()->set_robot_id(o_.robot_id);
@@ -421,6 +443,15 @@ class Runner {
     }
   }
 
+  // The pose's error against the room's arm nearest it.
+  PoseError NearestArm(const Iso3& T_world_base) const {
+    PoseError best;
+    best.add_m = std::numeric_limits<double>::infinity();
+    for (const Iso3& arm : scene_.arms_true)
+      if (const PoseError e = ComparePoses(T_world_base, arm, scene_.model_points); e.add_m < best.add_m) best = e;
+    return best;
+  }
+
   bool Finish(const pb::Result& result, Clock::time_point sent) {
     RegistrationOutcome outcome;
     outcome.request_id = result.request_id();
@@ -433,6 +464,12 @@ class Runner {
       outcome.T_world_base = *T;
       if (scene_.T_world_base_true && !scene_.model_points.empty())
         outcome.error = ComparePoses(*T, *scene_.T_world_base_true, scene_.model_points);
+      if (!scene_.arms_true.empty()) outcome.error = NearestArm(*T);
+    }
+    for (const pb::Candidate& c : result.candidates()) {
+      auto T = wire::MatrixFromProto(c.t_world_base_internal());
+      if (!T.ok()) return Fail(T.status().WithContext("result candidate pose"));
+      if (!scene_.arms_true.empty()) outcome.candidate_add_m.push_back(NearestArm(*T).add_m);
     }
     out_->registrations.push_back(outcome);
     if (!has_pose)

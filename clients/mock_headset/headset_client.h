@@ -55,15 +55,19 @@ class Connection {
 // What the headset has mapped (internal frame), and the truth when it is known.
 struct HeadsetScene {
   std::vector<Surface> surfaces;
-  std::vector<Iso3> seeds;               // T_world_seed guesses
+  std::vector<Iso3> seeds;               // T_world_seed guesses; none: seedless requests (the whole map)
   std::optional<Iso3> T_world_base_true;
   JointValues joints;                    // robot joint state (sent as JointState when non-empty)
   std::vector<Vec3f> model_points;       // robot points in its base frame, for ADD
   std::vector<Vec3> head_path_world;     // where the wearer walked while mapping (sent as head_path)
+  std::vector<Iso3> arms_true;           // a room's: every arm of the requested model (candidates' errors)
 };
 
 // A simulated cell of the built-in robot (small preset), as the mock headset maps it.
 Result<HeadsetScene> SimulatedScene(std::uint64_t rng_seed);
+// A simulated room (sim/room_simulator.h) holding `arms` arms of the built-in robot (0-2), mapped
+// with `mesher` ("own" or "open3d"): no seed, so the headset asks for a seedless registration.
+Result<HeadsetScene> SimulatedRoomScene(std::uint64_t rng_seed, int arms, const std::string& mesher);
 // A mesh file split into 1 m HoloLens-like surfaces; truth_json (optional) is `arref simulate`'s.
 // The errors against that truth are measured on truth_robot_urdf (empty: the built-in robot),
 // which must be the robot the cell was simulated with.
@@ -101,7 +105,8 @@ struct RegistrationOutcome {
   pb::Result result;
   Iso3 T_world_base = Iso3::Identity();  // converted back from the Unity pose
   double latency_ms = 0.0;               // last byte of the request sent -> result received
-  std::optional<PoseError> error;        // against the truth, when known
+  std::optional<PoseError> error;        // against the truth, when known (a room: the arm nearest the pose)
+  std::vector<double> candidate_add_m;   // a room's: each Result.candidates' ADD to its nearest arm
 };
 
 struct HeadsetRun {

@@ -43,6 +43,9 @@ struct Args {
   bool fast = false;
   bool track = false;
   TrackHeadsetOptions track_options;
+  bool room = false;  // map a whole simulated room and ask with no seed
+  int room_arms = 1;
+  std::string room_mesher = "own";
 };
 
 void AddFlags(CLI::App& app, Args& a) {
@@ -120,6 +123,13 @@ void AddFlags(CLI::App& app, Args& a) {
       ->check(CLI::Range(-1000.0, 1000.0));
   app.add_flag("--track-declare-latency", a.track_options.declare_latency,
                "--track: say that latency in the TrackRequest, as a device that knows it");
+  app.add_flag("--room", a.room,
+               "Map a whole simulated room (built-in robot, --rng-seed) and ask with no seed: the server searches the "
+               "whole map (automatic one-shot referencing); prints every instance found and its error");
+  app.add_option("--room-arms", a.room_arms, "--room: arms of the robot in the room (0: the answer must be FAILED)")
+      ->check(CLI::Range(0, 2))->capture_default_str();
+  app.add_option("--room-mesher", a.room_mesher, "--room: mesher of the room's map")
+      ->check(CLI::IsMember({"own", "open3d"}))->capture_default_str();
   app.add_option("--log-level", a.log_level, "trace, debug, info, warn, error")->capture_default_str();
 }
 
@@ -132,6 +142,7 @@ Misbehaviour ChosenMisbehaviour(const Args& a) {
 }
 
 Result<HeadsetScene> BuildScene(const Args& a) {
+  if (a.room) return SimulatedRoomScene(a.rng_seed, a.room_arms, a.room_mesher);
   if (a.scene.empty()) return SimulatedScene(a.rng_seed);
   ARREF_ASSIGN_OR_RETURN(const FrameConvention frame, ParseFrameConvention(a.frame));
   std::optional<Iso3> seed;
@@ -169,9 +180,34 @@ nlohmann::json RunJson(const HeadsetRun& run) {
     if (r.error)
       x["truth_error"] = {{"add_m", r.error->add_m}, {"translation_m", r.error->translation_m},
                           {"rotation_deg", r.error->rotation_deg}};
+    x["primary_candidate"] = r.result.primary_candidate();
+    x["candidates"] = nlohmann::json::array();
+    for (int i = 0; i < r.result.candidates_size(); ++i) {
+      const auto& c = r.result.candidates(i);
+      nlohmann::json y{{"status", wire::pb::ResultStatus_Name(c.status())}, {"score", c.score()}, {"margin", c.margin()},
+                       {"inlier_fraction", c.inlier_fraction()}, {"expected_error_m", c.expected_error_m()}};
+      if (static_cast<std::size_t>(i) < r.candidate_add_m.size()) y["nearest_arm_add_m"] = r.candidate_add_m[static_cast<std::size_t>(i)];
+      x["candidates"].push_back(y);
+    }
     j["registrations"].push_back(x);
   }
   return j;
+}
+
+// A seedless result's instances, the primary marked, each with its error against the room's arms.
+void PrintCandidates(const RegistrationOutcome& r) {
+  for (int i = 0; i < r.result.candidates_size(); ++i) {
+    const auto& c = r.result.candidates(i);
+    const auto* m = c.t_world_base_internal().data();
+    std::string error;
+    if (static_cast<std::size_t>(i) < r.candidate_add_m.size())
+      error = fmt::format(", {:.1f} mm from the nearest arm", r.candidate_add_m[static_cast<std::size_t>(i)] * 1e3);
+    std::cout << fmt::format("  {} instance {}: {} at ({:.3f}, {:.3f}, {:.3f}) (internal), score {:.3f}, margin {:.3f}, "
+                             "expected error {:.1f} mm{}\n", i == r.result.primary_candidate() ? "*" : " ", i,
+                             wire::pb::ResultStatus_Name(c.status()), c.t_world_base_internal_size() == 16 ? m[3] : 0.0,
+                             c.t_world_base_internal_size() == 16 ? m[7] : 0.0, c.t_world_base_internal_size() == 16 ? m[11] : 0.0,
+                             c.score(), c.margin(), c.expected_error_m() * 1e3, error);
+  }
 }
 
 void PrintHuman(const HeadsetRun& run) {
@@ -183,6 +219,7 @@ void PrintHuman(const HeadsetRun& run) {
                              wire::pb::ResultStatus_Name(r.result.status()), r.latency_ms, r.result.server_ms(),
                              r.result.queue_ms());
     if (!r.result.message().empty()) std::cout << "  " << r.result.message() << "\n";
+    PrintCandidates(r);
     if (r.result.status() != wire::pb::RESULT_STATUS_OK && r.result.status() != wire::pb::RESULT_STATUS_LOW_CONFIDENCE)
       continue;
     std::cout << fmt::format("  T_world_base (Unity): position ({:.4f}, {:.4f}, {:.4f}) rotation ({:.4f}, {:.4f}, {:.4f}, {:.4f})\n",
@@ -353,6 +390,17 @@ int RunTrack(Args& args) {
   return within >= 0.95 * scored ? 0 : 1;
 }
 
+// A room without the arm: the right answer is FAILED with no instance, in every run.
+bool RoomWithoutArmFailed(const std::vector<HeadsetRun>& runs) {
+  for (const auto& run : runs) {
+    if (run.registrations.empty()) return false;  // refused or cut off: no answer at all
+    for (const auto& r : run.registrations)
+      if (r.result.status() != wire::pb::RESULT_STATUS_FAILED || r.result.candidates_size() > 0) return false;
+  }
+  std::cout << "room without the arm: FAILED with no instance, as it should\n";
+  return true;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -391,6 +439,12 @@ int main(int argc, char** argv) {
     return 3;
   }
   if (args.soak_s > 0) return RunSoak(*scene, args);
+  if (args.room && !args.json) {
+    std::size_t triangles = 0;
+    for (const Surface& s : scene->surfaces) triangles += s.mesh.triangles.size();
+    std::cout << fmt::format("room {}: {} arms, {} triangles in {} surfaces ({} mesher), no seed\n", args.rng_seed,
+                             args.room_arms, triangles, scene->surfaces.size(), args.room_mesher);
+  }
   std::vector<HeadsetRun> runs;
   if (args.clients > 1 || args.options.repeat > 1) {  // latency figures
     runs = RunHeadsets(*scene, args.options, args.clients);
@@ -402,6 +456,7 @@ int main(int argc, char** argv) {
     else
       PrintHuman(runs[0]);
   }
+  if (args.room && args.room_arms == 0) return RoomWithoutArmFailed(runs) ? 0 : 1;
   for (const auto& r : runs)
     if (!r.status.ok()) return 1;
   return 0;

@@ -5,9 +5,9 @@ namespace arref {
 void TriangleMesh::Append(const TriangleMesh& other, const Iso3& T_this_other) {
   const auto offset = static_cast<std::uint32_t>(vertices.size());
   const Eigen::Isometry3f T = T_this_other.cast<float>();
-  vertices.reserve(vertices.size() + other.vertices.size());
+  // No reserve of the exact new size: a mesh built from many parts (a map's 200 surfaces) would
+  // then be copied whole on every append; push_back's doubling copies it about once.
   for (const auto& v : other.vertices) vertices.push_back(T * v);
-  triangles.reserve(triangles.size() + other.triangles.size());
   for (const auto& t : other.triangles) triangles.push_back({t[0] + offset, t[1] + offset, t[2] + offset});
 }
 

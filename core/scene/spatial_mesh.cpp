@@ -74,6 +74,9 @@ std::size_t SpatialMesh::vertex_count() const {
 std::shared_ptr<const TriangleMesh> SpatialMesh::MergedWorld() const {
   if (merged_) return merged_;
   auto merged = std::make_shared<TriangleMesh>();
+  std::size_t vertices = 0, triangles = 0;
+  for (const auto& [id, s] : surfaces_) vertices += s.mesh.vertices.size(), triangles += s.mesh.triangles.size();
+  merged->vertices.reserve(vertices), merged->triangles.reserve(triangles);
   for (const auto& [id, s] : surfaces_) merged->Append(s.mesh, s.T_world_surface);
   merged_ = std::move(merged);
   return merged_;

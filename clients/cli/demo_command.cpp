@@ -4,6 +4,7 @@
 #include <algorithm>
 #include <cstdio>
 
+#include "arref/base/stats.h"
 #include "arref/scene/metrics.h"
 #include "arref/pipeline/pipeline.h"
 #include "arref/sim/cell_simulator.h"
@@ -62,10 +63,9 @@ int Run(const DemoArgs& args) {
     adds.push_back(e.add_m);
   }
   if (adds.empty()) return kExitOk;
-  std::sort(adds.begin(), adds.end());
   const auto within = std::count_if(adds.begin(), adds.end(), [](double a) { return a <= 0.010; });
   std::printf("\n%s with %s: median ADD %.1f mm, %ld of %zu seeds within 10 mm\n", robot->name().c_str(),
-              MethodName(options.method), adds[adds.size() / 2] * 1e3, static_cast<long>(within), adds.size());
+              MethodName(options.method), Median(adds) * 1e3, static_cast<long>(within), adds.size());
   return kExitOk;
 }
 

@@ -22,6 +22,7 @@
 
 #include "arref/base/builtin.h"
 #include "arref/base/clock.h"
+#include "arref/base/stats.h"
 #include "arref/pipeline/pipeline.h"
 #include "arref/sim/cell_simulator.h"
 #include "arref/sim/room_simulator.h"
@@ -694,10 +695,8 @@ LatencySummary SummarizeLatency(const std::vector<HeadsetRun>& runs) {
   LatencySummary s;
   s.count = ms.size();
   if (ms.empty()) return s;
-  std::sort(ms.begin(), ms.end());
-  s.median_ms = ms.size() % 2 ? ms[ms.size() / 2] : 0.5 * (ms[ms.size() / 2 - 1] + ms[ms.size() / 2]);
-  s.p95_ms = ms[static_cast<std::size_t>(std::ceil(0.95 * static_cast<double>(ms.size()))) - 1];
-  s.max_ms = ms.back();
+  // stats.h's quantiles, so that these figures mean what the bench's tables mean.
+  s.median_ms = Quantile(ms, 0.5), s.p95_ms = Quantile(ms, 0.95), s.max_ms = Quantile(ms, 1.0);
   return s;
 }
 

@@ -343,11 +343,10 @@ int RunSoak(const HeadsetScene& scene, const Args& a) {
   return failed == 0 ? 0 : 1;
 }
 
-// Median and 95th percentile of a list (sorted in place).
-std::pair<double, double> MedianP95(std::vector<double>& v) {
+// Median and 95th percentile of a list (stats.h's quantiles, as every table's); 0 when empty.
+std::pair<double, double> MedianP95(const std::vector<double>& v) {
   if (v.empty()) return {0.0, 0.0};
-  std::sort(v.begin(), v.end());
-  return {v[v.size() / 2], v[std::min(v.size() - 1, v.size() * 95 / 100)]};
+  return {Quantile(v, 0.5), Quantile(v, 0.95)};
 }
 
 int RunTrack(Args& args) {

@@ -205,7 +205,7 @@ void MeshErrorSection(std::ostream& md, const std::vector<AutoRun>& runs, const 
   md << "\n## The mesh's error or the method's? (every requested arm)\n\n"
         "mesh error: the ADD of the rigid motion by which the headset's errors moved the arm in the map "
         "(per-view tracking error and, on Open3D, the surfaces' own errors); an arm fitted perfectly to the map lands "
-        "there.\n\n| method | mesher | arms | mesh error median mm | mesh error <= 5 mm: fitted within 10 mm | "
+        "there.\n\n| method | mesher | arms | mesh error median mm | mesh error under 5 mm: fitted within 10 mm | "
         "5-10 mm: within 10 mm | > 10 mm | not measured | the fit's ADD from where the mesh put the arm, median mm | "
         "ADD <= 2x the instance's expected error |\n|---|---|---|---|---|---|---|---|---|---|\n";
   for (const auto& m : methods)
@@ -224,7 +224,7 @@ void MeshErrorSection(std::ostream& md, const std::vector<AutoRun>& runs, const 
           }
           mesh.push_back(e * 1e3);
           if (!std::isnan(method)) added.push_back(method * 1e3);
-          if (e <= 0.005) ++low, low_fit += fit <= kSuccessAddM;
+          if (e < kMeshGoodM) ++low, low_fit += fit <= kSuccessAddM;  // as the cells' table
           else if (e <= kSuccessAddM) ++mid, mid_fit += fit <= kSuccessAddM;
           else ++high;
         }

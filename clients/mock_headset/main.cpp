@@ -125,7 +125,8 @@ void AddFlags(CLI::App& app, Args& a) {
                "--track: say that latency in the TrackRequest, as a device that knows it");
   app.add_flag("--room", a.room,
                "Map a whole simulated room (built-in robot, --rng-seed) and ask with no seed: the server searches the "
-               "whole map (automatic one-shot referencing); prints every instance found and its error");
+               "whole map (automatic one-shot referencing); prints every instance found and its error")
+      ->excludes("--scene", "--seed", "--track", "--send-recording");
   app.add_option("--room-arms", a.room_arms, "--room: arms of the robot in the room (0: the answer must be FAILED)")
       ->check(CLI::Range(0, 2))->capture_default_str();
   app.add_option("--room-mesher", a.room_mesher, "--room: mesher of the room's map")

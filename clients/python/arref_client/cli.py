@@ -28,11 +28,17 @@ def _pose(text):
 
 
 def _seed_and_frame(args):
-    """The seed and its frame: --seed in --frame, else the truth file's seeds[--seed-index] in its frame."""
+    """The seed and its frame: --seed in --frame, else the truth file's seeds[--seed-index] in its
+    frame; none with --no-seed (the server searches the whole map)."""
+    if args.no_seed:
+        if args.seed is not None or args.truth:
+            raise ValueError("--no-seed: give neither --seed nor --truth")
+        return None, args.frame
     if args.seed is not None:
         return args.seed, args.frame
     if not args.truth:
-        raise ValueError("no seed: pass --seed x,y,z,qx,qy,qz,qw or --truth FILE (arref simulate's truth JSON)")
+        raise ValueError("no seed: pass --seed x,y,z,qx,qy,qz,qw, --truth FILE (arref simulate's truth JSON) "
+                         "or --no-seed (search the whole map)")
     with open(args.truth) as f:
         truth = json.load(f)
     seeds = truth.get("seeds", [])
@@ -46,7 +52,11 @@ def _result_json(r):
             "frame": r.frame, "position": list(r.pose[:3]), "orientation": list(r.pose[3:]),
             "T_world_base": r.matrix.ravel().tolist(), "message": r.message, "method": r.method, "rms_m": r.rms_m,
             "inlier_fraction": r.inlier_fraction, "expected_error_m": r.expected_error_m, "iterations": r.iterations, "stages": r.stages,
-            "server_ms": r.server_ms}
+            "server_ms": r.server_ms, "primary_candidate": r.primary_candidate,
+            "candidates": [{"status": c.status, "position": list(c.pose[:3]), "orientation": list(c.pose[3:]),
+                            "T_world_base": c.matrix.ravel().tolist(), "message": c.message, "score": c.score,
+                            "margin": c.margin, "inlier_fraction": c.inlier_fraction,
+                            "expected_error_m": c.expected_error_m} for c in r.candidates]}
 
 
 def _tls(args):
@@ -84,6 +94,10 @@ def cmd_register(args):
         if r.expected_error_m > 0:
             print(f"  expected error {r.expected_error_m * 1e3:.1f} mm (the fit {r.fit_error_m * 1e3:.1f} mm, "
                   f"the map {r.map_error_m * 1e3:.1f} mm, the surface model {r.surface_error_m * 1e3:.1f} mm)")
+        for i, c in enumerate(r.candidates):
+            mark = "*" if i == r.primary_candidate else " "
+            print(f"  {mark} instance {i}: {c.status} at {c.pose[:3]}, score {c.score:.3f}, margin {c.margin:.3f}, "
+                  f"expected error {c.expected_error_m * 1e3:.1f} mm")
     return EXIT_OK if r.status in ("OK", "LOW_CONFIDENCE") else EXIT_FAILED
 
 
@@ -168,6 +182,7 @@ def parser():
     r.add_argument("--seed", type=_pose, help="seed x,y,z,qx,qy,qz,qw in --frame")
     r.add_argument("--truth", help="arref simulate's truth JSON: its seeds[--seed-index] is the seed")
     r.add_argument("--seed-index", type=int, default=0)
+    r.add_argument("--no-seed", action="store_true", help="send no seed: the server searches the whole map")
     r.add_argument("--robot", default="kr5", help="robot id served by the server")
     r.add_argument("--method", default="", help="registration method (default: the server's)")
     r.add_argument("--json", action="store_true", help="print the result as JSON")

@@ -82,6 +82,26 @@ class RobotInfo:
 
 
 @dataclass
+class Candidate:
+    """One instance of the robot a search of the whole map found (Result.candidates)."""
+    status: str          # "OK", "LOW_CONFIDENCE"
+    pose: tuple          # T_world_base as (x, y, z, qx, qy, qz, qw) in the result's frame
+    matrix: np.ndarray   # the same transform in the internal (ROS) frame, 4x4
+    message: str         # why it is not OK
+    score: float
+    margin: float
+    inlier_fraction: float
+    expected_error_m: float
+
+    @classmethod
+    def from_proto(cls, c):
+        matrix = np.array(c.T_world_base_internal, dtype=np.float64).reshape(4, 4) if len(
+            c.T_world_base_internal) == 16 else np.full((4, 4), np.nan)
+        return cls(pb.ResultStatus.Name(c.status).replace("RESULT_STATUS_", ""), pose_from_proto(c.T_world_base), matrix,
+                   c.message, c.score, c.margin, c.inlier_fraction, c.expected_error_m)
+
+
+@dataclass
 class RegistrationResult:
     request_id: int
     status: str          # "OK", "LOW_CONFIDENCE", "FAILED", "CANCELLED"
@@ -103,6 +123,10 @@ class RegistrationResult:
     iterations: int
     stages: list
     server_ms: float
+    # A request with no seed searched the whole map: every instance found, ranked, and the index
+    # of the primary one (whose pose is the result's own); [] and -1 for a seeded request.
+    candidates: list
+    primary_candidate: int
     proto: object = field(repr=False)  # the arref.v1.Result message itself
 
     @classmethod
@@ -113,7 +137,8 @@ class RegistrationResult:
         status = pb.ResultStatus.Name(r.status).replace("RESULT_STATUS_", "")
         return cls(r.request_id, status, r.robot_id, r.session_id, pose_from_proto(r.T_world_base), frame, matrix,
                    r.message, r.method, r.rms_m, r.inlier_fraction, r.expected_error_m, r.fit_error_m,
-                   r.map_error_m, r.surface_error_m, r.iterations, list(r.stages), r.server_ms, r)
+                   r.map_error_m, r.surface_error_m, r.iterations, list(r.stages), r.server_ms,
+                   [Candidate.from_proto(c) for c in r.candidates], r.primary_candidate if r.candidates else -1, r)
 
     @property
     def ok(self):
@@ -355,18 +380,22 @@ class Client:
     # ------------------------------------------------------------ registration
 
     def register(self, robot_id, *, seed=None, frame="ros", joints=None, method="", result_frame=None,
-                 head_path=None, request_id=None, on_progress=None, check=True, timeout=None, **params):
+                 head_path=None, gaze_point=None, wearer_position=None, request_id=None, on_progress=None,
+                 check=True, timeout=None, **params):
         """Asks for a registration and waits for its Result.
 
-        seed: a pose in `frame` for this request (default: the session's seed). params:
-        crop_radius_m, scene_samples, icp_max_correspondence_m, icp_max_iterations. With check,
-        a FAILED or CANCELLED result raises RegistrationFailed / Cancelled (carrying it)."""
-        rid = self.submit(robot_id, seed=seed, frame=frame, joints=joints, method=method,
-                          result_frame=result_frame, head_path=head_path, request_id=request_id, **params)
+        seed: a pose in `frame` for this request (default: the session's seed; with neither, the
+        server searches the whole map and the result lists every instance in `candidates`).
+        gaze_point, wearer_position: x, y, z in `frame`, to pick the primary instance of several.
+        params: crop_radius_m, scene_samples, icp_max_correspondence_m, icp_max_iterations. With
+        check, a FAILED or CANCELLED result raises RegistrationFailed / Cancelled (carrying it)."""
+        rid = self.submit(robot_id, seed=seed, frame=frame, joints=joints, method=method, result_frame=result_frame,
+                          head_path=head_path, gaze_point=gaze_point, wearer_position=wearer_position,
+                          request_id=request_id, **params)
         return self.wait_result(rid, on_progress=on_progress, check=check, timeout=timeout)
 
     def submit(self, robot_id, *, seed=None, frame="ros", joints=None, method="", result_frame=None,
-               head_path=None, request_id=None, **params):
+               head_path=None, gaze_point=None, wearer_position=None, request_id=None, **params):
         """Sends a RegisterRequest and waits for Accepted; returns its request id."""
         rid = next(self._request_ids) if request_id is None else request_id
         m = pb.ClientMessage()
@@ -388,6 +417,12 @@ class Client:
             for p in np.asarray(head_path, dtype=np.float64).reshape(-1, 3):
                 q = r.head_path.positions.add()
                 q.x, q.y, q.z = p
+        for name, point in (("gaze_point", gaze_point), ("wearer_position", wearer_position)):
+            if point is not None:
+                x, y, z = (float(v) for v in point)
+                hint = getattr(r, name)
+                hint.x, hint.y, hint.z = x, y, z
+                r.hint_frame = frame_convention(frame)
         for key, value in params.items():
             if key not in ("crop_radius_m", "scene_samples", "icp_max_correspondence_m", "icp_max_iterations"):
                 raise TypeError(f"register: unknown parameter '{key}'")

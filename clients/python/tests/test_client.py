@@ -77,6 +77,38 @@ def test_register_in_ros_frame_finds_the_robot(server, cell_ros):
     assert 0.001 < r.expected_error_m < 0.015
 
 
+def test_register_with_no_seed_lists_the_instances(server, cell_ros):
+    """No seed in the request or the session: the server searches the whole map (arref-auto) and
+    the result lists every instance found, the primary one's pose being the result's own."""
+    with Client("127.0.0.1", server.port) as c:
+        c.upload_mesh(cell_ros.mesh["ply"], frame="ros")
+        truth = cell_ros.T_world_base
+        r = c.register("kr5", frame="ros", gaze_point=truth[:3, 3], check=False)
+    assert r.status in ("OK", "LOW_CONFIDENCE"), r.message
+    assert "detect" in r.stages and r.candidates
+    assert 0 <= r.primary_candidate < len(r.candidates)
+    primary = r.candidates[r.primary_candidate]
+    np.testing.assert_allclose(primary.matrix, r.matrix, atol=1e-9)
+    assert primary.status == r.status and primary.expected_error_m > 0
+    assert_near_truth(r, cell_ros)
+    # A seeded request lists none.
+    with Client("127.0.0.1", server.port) as c:
+        c.upload_mesh(cell_ros.mesh["ply"], frame="ros")
+        seeded = c.register("kr5", seed=cell_ros.seed(0), frame="ros")
+    assert seeded.candidates == [] and seeded.primary_candidate == -1
+
+
+def test_cli_register_with_no_seed(server, cell_ros):
+    out = python_cli("--port", str(server.port), "register", "--scene", cell_ros.mesh["ply"], "--no-seed", "--json")
+    assert out.returncode == 0, out.stderr
+    j = json.loads(out.stdout)
+    assert j["candidates"] and 0 <= j["primary_candidate"] < len(j["candidates"])
+    assert j["candidates"][j["primary_candidate"]]["T_world_base"] == pytest.approx(j["T_world_base"])
+    bad = python_cli("--port", str(server.port), "register", "--scene", cell_ros.mesh["ply"], "--no-seed",
+                     "--seed", "0,0,0,0,0,0,1")
+    assert bad.returncode != 0 and "--no-seed: give neither --seed nor --truth" in bad.stderr
+
+
 def test_register_in_unity_frame_matches_ros(server, cell_ros, cell_unity):
     """The same cell written in Unity's convention: same internal pose, Unity pose = (-y, z, x)."""
     with Client("127.0.0.1", server.port) as c:

@@ -81,6 +81,16 @@ class RobotInfo:
     default_positions: list
 
 
+def _status_name(value):
+    """A ResultStatus as the client names it: "OK", "LOW_CONFIDENCE", "FAILED", "CANCELLED"."""
+    return pb.ResultStatus.Name(value).replace("RESULT_STATUS_", "")
+
+
+def _internal_matrix(values):
+    """T_world_base_internal (4x4 row-major) as an array; NaN when the message holds none."""
+    return np.array(values, dtype=np.float64).reshape(4, 4) if len(values) == 16 else np.full((4, 4), np.nan)
+
+
 @dataclass
 class Candidate:
     """One instance of the robot a search of the whole map found (Result.candidates)."""
@@ -95,9 +105,7 @@ class Candidate:
 
     @classmethod
     def from_proto(cls, c):
-        matrix = np.array(c.T_world_base_internal, dtype=np.float64).reshape(4, 4) if len(
-            c.T_world_base_internal) == 16 else np.full((4, 4), np.nan)
-        return cls(pb.ResultStatus.Name(c.status).replace("RESULT_STATUS_", ""), pose_from_proto(c.T_world_base), matrix,
+        return cls(_status_name(c.status), pose_from_proto(c.T_world_base), _internal_matrix(c.T_world_base_internal),
                    c.message, c.score, c.margin, c.inlier_fraction, c.expected_error_m)
 
 
@@ -132,9 +140,8 @@ class RegistrationResult:
     @classmethod
     def from_proto(cls, r):
         frame = {pb.FRAME_CONVENTION_ROS: "ros", pb.FRAME_CONVENTION_UNITY: "unity"}.get(r.frame, "unspecified")
-        matrix = np.array(r.T_world_base_internal, dtype=np.float64).reshape(4, 4) if len(
-            r.T_world_base_internal) == 16 else np.full((4, 4), np.nan)
-        status = pb.ResultStatus.Name(r.status).replace("RESULT_STATUS_", "")
+        matrix = _internal_matrix(r.T_world_base_internal)
+        status = _status_name(r.status)
         return cls(r.request_id, status, r.robot_id, r.session_id, pose_from_proto(r.T_world_base), frame, matrix,
                    r.message, r.method, r.rms_m, r.inlier_fraction, r.expected_error_m, r.fit_error_m,
                    r.map_error_m, r.surface_error_m, r.iterations, list(r.stages), r.server_ms,

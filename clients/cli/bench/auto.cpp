@@ -49,8 +49,6 @@ struct AutoRun {
 };
 
 
-bool IsSeeded(Method m) { return m != Method::kArrefAuto && m != Method::kSlidingBoxShot; }
-
 // A seeded method run as a seeded request at each requested arm's true pose (--auto-truth-seeds):
 // no search, so what is left is the fit's own error on the room's map, as the robustness
 // experiment's truth seeds measure it on cells.
@@ -112,8 +110,9 @@ std::vector<AutoRun> RunRoom(const BenchRobot& robot, const BenchRobot* other, s
     RegistrationOptions o;
     o.method = *ParseMethod(method);  // checked by the command
     if (config.head_path) o.head_path_world = room->head_path_world;
-    auto report = config.auto_truth_seeds && IsSeeded(o.method) ? SeededAtEachArm(**side, scene, requested, o)
-                                                                : RegisterWholeMap(**side, scene, o);
+    const MethodInfo* info = FindMethod(o.method);  // the registry says which methods take a seed
+    auto report = config.auto_truth_seeds && info && !info->seedless ? SeededAtEachArm(**side, scene, requested, o)
+                                                                     : RegisterWholeMap(**side, scene, o);
     if (!report.ok()) {
       r.error = report.status().ToString();
       runs.push_back(r);

@@ -8,7 +8,9 @@
 #include <pcl/registration/icp.h>
 #include <tbb/global_control.h>
 
+#include <algorithm>
 #include <chrono>
+#include <map>
 #include <memory>
 #include <thread>
 #include <utility>
@@ -23,6 +25,7 @@
 #include "arref/sim/cell_simulator.h"
 #include "arref/sim/track_simulator.h"
 #include "arref/track/depth_noise.h"
+#include "arref/track/model_caster.h"
 #include "arref/track/tracker.h"
 #include "arref/scene/spatial_mesh.h"
 #include "arref/fusion/tracking_error.h"
@@ -208,32 +211,47 @@ void BM_TrackingErrorWeights(benchmark::State& state) {
   for (auto _ : state) benchmark::DoNotOptimize(TrackingErrorWeights(surface, eyes, {}));
 }
 
-// A second of the built-in robot's long-throw stream (320x288 at 30 fps, no jump), as the tracker
-// gets it: frames, the joints at their exposure, the first guess.
+// A second of the built-in robot's stream (long-throw: 320x288 at 30 fps; AHAT: 512x512 at
+// 45 fps, wrapped at 1 m; no jump), as the tracker gets it: frames, the joints at their exposure,
+// the first guess, and the robot's model seen from each frame's camera at the truth (what a
+// wrapped frame's noise is measured against, as the filter's view of it).
 struct TrackStream {
   std::shared_ptr<const RobotModel> robot;
   std::vector<sim::SimFrame> frames;
+  std::vector<ModelView> views;
   Iso3 first_guess;
 };
 
-const TrackStream& LongThrowSecond() {
-  static const TrackStream s = [] {
-    TrackStream out;
-    out.robot = Cell().model_robot;
-    sim::TrackSimOptions options;
-    options.duration_s = 1.0;
-    options.jump_at_s = 10.0;
-    auto simulator = sim::TrackSimulator::Create(out.robot, options, 3);
-    out.first_guess = simulator->T_world_base_guess();
-    for (int i = 0; i < simulator->frame_count(); ++i) out.frames.push_back(*simulator->Next());
-    return out;
-  }();
-  return s;
+const TrackStream& SecondOf(sim::FrameKind kind) {
+  static std::map<sim::FrameKind, TrackStream> streams;
+  if (auto it = streams.find(kind); it != streams.end()) return it->second;
+  TrackStream out;
+  out.robot = Cell().model_robot;
+  sim::TrackSimOptions options;
+  options.kind = kind;
+  options.duration_s = 1.0;
+  options.jump_at_s = 10.0;
+  auto simulator = sim::TrackSimulator::Create(out.robot, options, 3);
+  auto caster = ModelCaster::Create(*out.robot);
+  out.first_guess = simulator->T_world_base_guess();
+  for (int i = 0; i < simulator->frame_count(); ++i) {
+    const sim::SimFrame f = *simulator->Next();
+    (void)caster->Pose(*out.robot, f.joints_true);
+    const int stride = std::max(1, (f.frame.intrinsics.width + 159) / 160);  // the tracker's grid
+    out.views.push_back(caster->Render(f.frame.intrinsics, f.T_world_base_true.inverse() * f.frame.T_world_camera, 5.0, stride));
+    out.frames.push_back(f);
+  }
+  return streams.emplace(kind, std::move(out)).first->second;
+}
+
+sim::FrameKind KindOf(const benchmark::State& state) {
+  return state.range(0) == 0 ? sim::FrameKind::kLongThrow : sim::FrameKind::kAhat;
 }
 
 // The baseline of BM_FrameDepthNoise: the tracker's whole work on those frames, per frame.
+// Argument: 0 long-throw, 1 AHAT.
 void BM_TrackerFrame(benchmark::State& state) {
-  const TrackStream& s = LongThrowSecond();
+  const TrackStream& s = SecondOf(KindOf(state));
   for (auto _ : state) {
     auto tracker = Tracker::Create(s.robot, {});
     if (!tracker.ok()) return state.SkipWithError(tracker.status().ToString().c_str());
@@ -243,11 +261,15 @@ void BM_TrackerFrame(benchmark::State& state) {
   state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(s.frames.size()));
 }
 
-// What measuring a frame's depth noise adds to each unwrapped frame (FrameDepthNoise).
+// What measuring a frame's depth noise adds to each frame: FrameDepthNoise on a long-throw frame,
+// WrappedFrameDepthNoise on an AHAT frame (its model view made beforehand, as the tracker's fit
+// makes it anyway). Argument: 0 long-throw, 1 AHAT.
 void BM_FrameDepthNoise(benchmark::State& state) {
-  const TrackStream& s = LongThrowSecond();
+  const TrackStream& s = SecondOf(KindOf(state));
   for (auto _ : state)
-    for (const sim::SimFrame& f : s.frames) benchmark::DoNotOptimize(FrameDepthNoise(f.frame));
+    for (std::size_t i = 0; i < s.frames.size(); ++i)
+      benchmark::DoNotOptimize(s.frames[i].frame.wrap_m > 0 ? WrappedFrameDepthNoise(s.frames[i].frame, s.views[i])
+                                                            : FrameDepthNoise(s.frames[i].frame));
   state.SetItemsProcessed(state.iterations() * static_cast<std::int64_t>(s.frames.size()));
 }
 
@@ -337,9 +359,9 @@ BENCHMARK(BM_NewJointState)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchm
 BENCHMARK(BM_NewJointStateOneByOne)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ExpectedInContext)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_BandVoxelRows)->Unit(benchmark::kMillisecond);
-BENCHMARK(BM_TrackerFrame)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_TrackerFrame)->Arg(0)->Arg(1)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_MergedWorld)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
-BENCHMARK(BM_FrameDepthNoise)->Unit(benchmark::kMillisecond);
+BENCHMARK(BM_FrameDepthNoise)->Arg(0)->Arg(1)->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_TrackingErrorWeights)->MeasureProcessCPUTime()->UseRealTime()->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ArrefIteration)->ArgsProduct({{2000, 5000}, {1, 2}, {0, 1}})->Unit(benchmark::kMillisecond);
 BENCHMARK(BM_ArrefTenIterations)->ArgsProduct({{2000, 5000}, {1, 2}})->Unit(benchmark::kMillisecond);

@@ -22,6 +22,38 @@ std::optional<double> FrameDepthNoise(const DepthFrame& frame, int row_step, std
   return 1.4826 * static_cast<double>(UpperMiddle(ratios)) / std::sqrt(6.0);
 }
 
+namespace {
+
+// a - b modulo the wrap, into [-wrap / 2, wrap / 2).
+float WrappedDifference(float a, float b, float wrap) {
+  const float d = a - b;
+  return d - wrap * std::floor(d / wrap + 0.5f);
+}
+
+}  // namespace
+
+std::optional<double> WrappedFrameDepthNoise(const DepthFrame& frame, const ModelView& expected, std::size_t min_samples) {
+  const DepthIntrinsics& c = frame.intrinsics;
+  const int s = expected.stride;
+  if (!(frame.wrap_m > 0) || s < 1 || expected.width != c.width || expected.height != c.height) return std::nullopt;
+  const int gw = c.width / s, gh = c.height / s;
+  if (expected.z_depth.size() < static_cast<std::size_t>(gw) * static_cast<std::size_t>(gh)) return std::nullopt;
+  const float wrap = static_cast<float>(frame.wrap_m);
+  std::vector<float> ratios;
+  for (int gv = 0; gv < gh; ++gv)
+    for (int gu = 0; gu < gw; ++gu) {
+      const float z = expected.z_depth[static_cast<std::size_t>(gv) * gw + gu];
+      const int u = gu * s, v = gv * s;
+      if (z <= 0 || u < 1 || u + 1 >= c.width) continue;
+      const float a = frame.DepthAt(u - 1, v), b = frame.DepthAt(u, v), d = frame.DepthAt(u + 1, v);
+      if (a <= 0 || b <= 0 || d <= 0) continue;
+      const float range = b + wrap * std::max(0.0f, std::round((z - b) / wrap));
+      ratios.push_back(std::abs(WrappedDifference(d, b, wrap) - WrappedDifference(b, a, wrap)) / range);
+    }
+  if (ratios.size() < min_samples) return std::nullopt;
+  return 1.4826 * static_cast<double>(UpperMiddle(ratios)) / std::sqrt(6.0);
+}
+
 void DepthNoiseEstimate::Add(double fraction) {
   if (!std::isfinite(fraction)) return;
   recent_.push_back(fraction);

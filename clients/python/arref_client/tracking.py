@@ -88,7 +88,7 @@ class TrackingUpdate:
     frames_processed: int
     frames_dropped: int
     agreement: float
-    depth_noise: float       # the depth's noise the server measured, sigma / range (0: not measured)
+    depth_noise: float       # the depth's noise the server measured, sigma / range (0: not measured yet)
     proto: object = field(repr=False)  # the arref.v1.TrackingUpdate message itself
 
     @classmethod

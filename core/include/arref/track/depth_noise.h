@@ -8,6 +8,7 @@
 #include <optional>
 
 #include "arref/track/depth_frame.h"
+#include "arref/track/model_caster.h"
 
 namespace arref {
 
@@ -20,6 +21,15 @@ namespace arref {
 // readings are not ranges: a far surface read modulo the wrap would count its noise against a
 // near range).
 std::optional<double> FrameDepthNoise(const DepthFrame& frame, int row_step = 4, std::size_t min_samples = 500);
+
+// The same for a wrapped frame (AHAT: ranges modulo wrap_m), where only a model of the scene
+// says how far a reading is: measured at the pixels of `expected`'s grid where it has a depth
+// (the robot's model as the tracker places it, seen from the frame's camera). Neighbours'
+// differences are taken modulo the wrap, so a wrap between them costs nothing, and the second
+// difference is divided by the reading unwrapped to the alias nearest the expected depth. None
+// for an unwrapped frame, or with fewer than min_samples such triples.
+std::optional<double> WrappedFrameDepthNoise(const DepthFrame& frame, const ModelView& expected,
+                                             std::size_t min_samples = 200);
 
 // The median of the last `frames` frames' figures: one frame's edges and props move it, the
 // sensor's noise does not change between frames.

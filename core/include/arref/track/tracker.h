@@ -46,8 +46,8 @@ struct TrackerSettings {
   // range part, and floor_clearance_m (the floor's depth noise), by its noise over this one.
   // Fixed, at 3 % of range no pose agreed with min_reacquire_agreement of its pixels and most dev
   // streams were lost for good (docs/tracking.md, "A noisier depth sensor"); scaling the ICP
-  // distances and the crop's margin as well did worse. 0: never scaled. Wrapped frames are not
-  // measured.
+  // distances and the crop's margin as well did worse. 0: never scaled, nor measured. Wrapped
+  // frames are measured and reported (WrappedFrameDepthNoise), never scaled.
   double reference_depth_noise = 0.0105;
   std::size_t depth_noise_frames = 30;  // the noise is the median of this many frames' figures
   double min_agreement = 0.6;     // below: the fit is lost
@@ -136,7 +136,8 @@ struct TrackResult {
   double agreement = 0.0;         // fraction of visible model pixels the depth agrees with
   double agreement_filtered = 0.0;  // the same for the filter's explanation of this frame
   // The stream's depth noise (sigma / range) measured from its frames, which sets the agreement's
-  // tolerance when it is above the sensor's the tracker was set on; 0: not measured (wrapped frames).
+  // tolerance when it is above the sensor's the tracker was set on (unwrapped frames; a wrapped
+  // stream's is reported only); 0: not measured yet.
   double depth_noise_fraction = 0.0;
   std::size_t model_points = 0;
   std::size_t depth_points = 0;

@@ -117,6 +117,31 @@ TEST(Seedless, ARoomWithoutASmallArmIsFailed) {
   }
 }
 
+// A LOW_CONFIDENCE fit must be a distinct pose to be an instance: in this Open3D room, which holds
+// no MH5 (only a built-in arm), the MH5 laid on boxes fitted several poses alike and explained its
+// place; before the rule it was returned as a LOW_CONFIDENCE instance (dev draws 4-13 had five
+// such in 160 empty rooms, all MH5 on Open3D meshes, leading by 0.005-0.046). The result names
+// the margin.
+TEST(Seedless, ASmallArmsAmbiguousFitOnClutterIsNoInstance) {
+  const std::string urdf = testing::SharedDir() + "/robots/motoman_mh5_support/urdf/mh5.urdf";
+  if (!std::filesystem::exists(urdf)) GTEST_SKIP() << urdf << " not found: the vendor MH5 package is only beside CI's and developers' clones";
+  if (!sim::MesherAvailable(sim::Mesher::kOpen3d)) GTEST_SKIP() << "Open3D's mesher is not built in";
+  ASSERT_OK_AND_ASSIGN(const RobotModel mh5, RobotModel::Load(urdf, RobotLoadOptions{.package_path = {testing::SharedDir() + "/robots"}}));
+  ASSERT_OK_AND_ASSIGN(const std::shared_ptr<const RobotSide> side, RobotSide::Create(mh5, JointValues{}, 10000, 1));
+  sim::RoomOptions room_options;
+  room_options.arms = 0;
+  room_options.other_arm = true;
+  room_options.mesher = sim::Mesher::kOpen3d;
+  ASSERT_OK_AND_ASSIGN(const sim::SimulatedRoom room, sim::SimulateRoom({&mh5, &BuiltinRobot()}, room_options, 9));
+  RegistrationOptions options;
+  options.method = Method::kArrefAuto;
+  ASSERT_OK_AND_ASSIGN(const WholeMapReport report, RegisterWholeMap(*side, Merged(room), options));
+  EXPECT_EQ(report.status, ResultStatus::kFailed) << report.status_reason;
+  for (const auto& instance : report.instances)
+    ADD_FAILURE() << "an instance said " << ResultStatusName(instance.report.status) << ", margin " << instance.report.margin;
+  EXPECT_NE(report.status_reason.find("distinct pose"), std::string::npos) << report.status_reason;
+}
+
 TEST(Seedless, ArrefAutoRefusesASeededRequestAndAnEmptyMap) {
   const Room room = MakeRoom(1, 6);
   RegistrationOptions options;

@@ -418,6 +418,8 @@ Result<WholeMapReport> AutoSearch(const RobotSide& robot, const TriangleMesh& sc
   const double near = on + cell;                                   // round the robot, at the detection's cell
   double best_share = 0, best_bar = 1;
   int unexplained = 0;  // LOW_CONFIDENCE fits that leave too much of the map round them unexplained
+  int ambiguous = 0;    // ... or that explain it but lead their alternative poses by less than an OK margin
+  double best_ambiguous_margin = 0;
   stages.Start("refine", 0.75);
   std::vector<Result<RegistrationReport>> full(distinct.size(), Status::Internal("not run"));
   tbb::parallel_for(std::size_t{0}, distinct.size(), [&](std::size_t i) {
@@ -443,15 +445,29 @@ Result<WholeMapReport> AutoSearch(const RobotSide& robot, const TriangleMesh& sc
     if (e.share > best_share) best_share = e.share, best_bar = e.Bar();
     // An OK fit has passed arref-icp's margin and coverage and leads the room's clutter; a
     // LOW_CONFIDENCE one is a maybe, and with several candidates per room a maybe on clutter is
-    // likely, so it must explain its place.
+    // likely, so it must explain its place, and be a distinct pose: lead its own alternatives by
+    // the margin an OK fit needs. A robot that is there gives one pose (LOW_CONFIDENCE instances
+    // within 20 mm of an arm led by 0.18-0.58 on dev draws 1-3); a small arm laid on boxes fits
+    // several poses alike (the MH5's Open3D fits on clutter led by 0.005-0.046 in empty rooms of
+    // dev draws 4-13, explaining their place at 0.78-0.83 against bars of 0.76-0.81).
     if (full[i]->status != ResultStatus::kOk && !e.Holds()) {
       ++unexplained;
+      continue;
+    }
+    if (full[i]->status != ResultStatus::kOk && full[i]->margin < options.confidence.ok_min_margin) {
+      ++ambiguous;
+      best_ambiguous_margin = std::max(best_ambiguous_margin, full[i]->margin);
       continue;
     }
     if (!duplicate) out.instances.push_back({std::move(*full[i]), distinct[i].detection_score, e.share, e.Bar()});
   }
   out.stages_run.push_back(fmt::format("arref-icp-x{}", distinct.size()));
-  if (out.instances.empty() && unexplained > 0)
+  if (out.instances.empty() && ambiguous > 0 && unexplained == 0)
+    out.status_reason = fmt::format(
+        "none of the {} candidate bases gave a distinct pose of the robot: the best led its alternative poses by "
+        "{:.3f} (a robot that is there leads by {:.2f} or more), so it lies on other surfaces",
+        fitted, best_ambiguous_margin, options.confidence.ok_min_margin);
+  else if (out.instances.empty() && unexplained > 0)
     out.status_reason = fmt::format(
         "none of the {} candidate bases explained the robot: the best fit left {:.0f} % of the map round it off the "
         "robot (at most {:.0f} % for a robot that is there), so it lies on other surfaces",

@@ -6,6 +6,22 @@
 #include "arref/base/stats.h"
 
 namespace arref {
+namespace {
+
+// sigma / range from second differences over range: 6 sigma^2 of variance on a smooth surface,
+// edges and missing returns outliers for the median (MAD, 1.4826 per sigma).
+std::optional<double> SigmaOfSecondDifferences(std::vector<float>& ratios, std::size_t min_samples) {
+  if (ratios.size() < min_samples) return std::nullopt;
+  return 1.4826 * static_cast<double>(UpperMiddle(ratios)) / std::sqrt(6.0);
+}
+
+// a - b modulo the wrap, into [-wrap / 2, wrap / 2).
+float WrappedDifference(float a, float b, float wrap) {
+  const float d = a - b;
+  return d - wrap * std::floor(d / wrap + 0.5f);
+}
+
+}  // namespace
 
 std::optional<double> FrameDepthNoise(const DepthFrame& frame, int row_step, std::size_t min_samples) {
   const DepthIntrinsics& c = frame.intrinsics;
@@ -18,19 +34,8 @@ std::optional<double> FrameDepthNoise(const DepthFrame& frame, int row_step, std
       if (a <= 0 || b <= 0 || d <= 0) continue;
       ratios.push_back(std::abs(a - 2 * b + d) / b);
     }
-  if (ratios.size() < min_samples) return std::nullopt;
-  return 1.4826 * static_cast<double>(UpperMiddle(ratios)) / std::sqrt(6.0);
+  return SigmaOfSecondDifferences(ratios, min_samples);
 }
-
-namespace {
-
-// a - b modulo the wrap, into [-wrap / 2, wrap / 2).
-float WrappedDifference(float a, float b, float wrap) {
-  const float d = a - b;
-  return d - wrap * std::floor(d / wrap + 0.5f);
-}
-
-}  // namespace
 
 std::optional<double> WrappedFrameDepthNoise(const DepthFrame& frame, const ModelView& expected, std::size_t min_samples) {
   const DepthIntrinsics& c = frame.intrinsics;
@@ -50,8 +55,7 @@ std::optional<double> WrappedFrameDepthNoise(const DepthFrame& frame, const Mode
       const float range = b + wrap * std::max(0.0f, std::round((z - b) / wrap));
       ratios.push_back(std::abs(WrappedDifference(d, b, wrap) - WrappedDifference(b, a, wrap)) / range);
     }
-  if (ratios.size() < min_samples) return std::nullopt;
-  return 1.4826 * static_cast<double>(UpperMiddle(ratios)) / std::sqrt(6.0);
+  return SigmaOfSecondDifferences(ratios, min_samples);
 }
 
 void DepthNoiseEstimate::Add(double fraction) {

@@ -233,13 +233,14 @@ const TrackStream& SecondOf(sim::FrameKind kind) {
   options.jump_at_s = 10.0;
   auto simulator = sim::TrackSimulator::Create(out.robot, options, 3);
   auto caster = ModelCaster::Create(*out.robot);
+  if (!simulator.ok() || !caster.ok()) return streams.emplace(kind, std::move(out)).first->second;  // no frames: skipped
   out.first_guess = simulator->T_world_base_guess();
   for (int i = 0; i < simulator->frame_count(); ++i) {
-    const sim::SimFrame f = *simulator->Next();
-    (void)caster->Pose(*out.robot, f.joints_true);
-    const int stride = std::max(1, (f.frame.intrinsics.width + 159) / 160);  // the tracker's grid
-    out.views.push_back(caster->Render(f.frame.intrinsics, f.T_world_base_true.inverse() * f.frame.T_world_camera, 5.0, stride));
-    out.frames.push_back(f);
+    auto f = simulator->Next();
+    if (!f.ok() || !caster->Pose(*out.robot, f->joints_true).ok()) break;
+    const int stride = std::max(1, (f->frame.intrinsics.width + 159) / 160);  // the tracker's default grid (StrideFor)
+    out.views.push_back(caster->Render(f->frame.intrinsics, f->T_world_base_true.inverse() * f->frame.T_world_camera, 5.0, stride));
+    out.frames.push_back(std::move(*f));
   }
   return streams.emplace(kind, std::move(out)).first->second;
 }
@@ -252,6 +253,7 @@ sim::FrameKind KindOf(const benchmark::State& state) {
 // Argument: 0 long-throw, 1 AHAT.
 void BM_TrackerFrame(benchmark::State& state) {
   const TrackStream& s = SecondOf(KindOf(state));
+  if (s.frames.empty()) return state.SkipWithError("the simulated stream could not be made");
   for (auto _ : state) {
     auto tracker = Tracker::Create(s.robot, {});
     if (!tracker.ok()) return state.SkipWithError(tracker.status().ToString().c_str());
@@ -266,6 +268,7 @@ void BM_TrackerFrame(benchmark::State& state) {
 // makes it anyway). Argument: 0 long-throw, 1 AHAT.
 void BM_FrameDepthNoise(benchmark::State& state) {
   const TrackStream& s = SecondOf(KindOf(state));
+  if (s.frames.empty()) return state.SkipWithError("the simulated stream could not be made");
   for (auto _ : state)
     for (std::size_t i = 0; i < s.frames.size(); ++i)
       benchmark::DoNotOptimize(s.frames[i].frame.wrap_m > 0 ? WrappedFrameDepthNoise(s.frames[i].frame, s.views[i])

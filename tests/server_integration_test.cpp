@@ -28,6 +28,7 @@
 #include <sstream>
 #include <string>
 #include <thread>
+#include <utility>
 #include <vector>
 
 #include "arref/fusion/model_reconstruction.h"
@@ -1174,6 +1175,18 @@ TEST(ServerHardening, OrderingHalfCloseAndStrictFields) {
 
 // ---------------------------------------------------------------- continuous referencing
 
+// The settled updates of a run (SettledUpdates) and how many of them lie within ADD 10 mm.
+std::pair<int, int> SettledWithin10mm(const TrackHeadsetRun& run) {
+  const std::vector<bool> settled = SettledUpdates(run);
+  int scored = 0, within = 0;
+  for (std::size_t i = 0; i < run.updates.size(); ++i) {
+    if (!settled[i]) continue;
+    ++scored;
+    within += run.updates[i].add_mm < 10;
+  }
+  return {scored, within};
+}
+
 // A headset streams simulated depth frames in real time through the server, a robot-side
 // session streams the joints on its own clock, a third session subscribes: every frame is
 // answered or counted as dropped, the filtered pose follows the truth through the world jump.
@@ -1244,13 +1257,7 @@ TEST(ServerIntegration, TrackingTakesADeclaredCameraPoseLatency) {
   const TrackHeadsetRun run = RunTrackingHeadset(o);
   ASSERT_TRUE(run.status.ok()) << run.status.ToString();
   for (const auto& e : run.errors) ADD_FAILURE() << "server error: " << e.message();
-  const std::vector<bool> settled = SettledUpdates(run);
-  int scored = 0, within = 0;
-  for (std::size_t i = 0; i < run.updates.size(); ++i) {
-    if (!settled[i]) continue;
-    ++scored;
-    within += run.updates[i].add_mm < 10;
-  }
+  const auto [scored, within] = SettledWithin10mm(run);
   ASSERT_GE(scored, 10);
   EXPECT_GE(within, 0.9 * scored) << within << " of " << scored << " updates within 10 mm";
 }
@@ -1273,13 +1280,7 @@ TEST(ServerIntegration, TrackingAWrappedStreamReportsItsNoise) {
     const TrackHeadsetRun run = RunTrackingHeadset(o);
     ASSERT_TRUE(run.status.ok()) << run.status.ToString();
     for (const auto& e : run.errors) ADD_FAILURE() << "server error: " << e.message();
-    const std::vector<bool> settled = SettledUpdates(run);
-    int scored = 0, within = 0;
-    for (std::size_t i = 0; i < run.updates.size(); ++i) {
-      if (!settled[i]) continue;
-      ++scored;
-      within += run.updates[i].add_mm < 10;
-    }
+    const auto [scored, within] = SettledWithin10mm(run);
     ASSERT_GE(scored, 10) << "noise " << noise;
     EXPECT_GE(within, 0.9 * scored) << within << " of " << scored << " updates within 10 mm at noise " << noise;
     const double expected = noise > 0 ? noise + 0.002 / 1.2 : 0.003 + 0.002 / 1.2;

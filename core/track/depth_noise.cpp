@@ -52,7 +52,7 @@ std::optional<double> WrappedFrameDepthNoise(const DepthFrame& frame, const Mode
       if (z <= 0 || u < 1 || u + 1 >= c.width) continue;
       const float a = frame.DepthAt(u - 1, v), b = frame.DepthAt(u, v), d = frame.DepthAt(u + 1, v);
       if (a <= 0 || b <= 0 || d <= 0) continue;
-      const float range = b + wrap * std::max(0.0f, std::round((z - b) / wrap));
+      const float range = UnwrappedDepth(b, z, frame.wrap_m);
       ratios.push_back(std::abs(WrappedDifference(d, b, wrap) - WrappedDifference(b, a, wrap)) / range);
     }
   return SigmaOfSecondDifferences(ratios, min_samples);

@@ -82,13 +82,6 @@ const std::vector<double>& WideDistances() {
 // in front of it can read alike, so some rules hold only for frames that do not wrap.
 bool Wraps(const DepthFrame& f) { return f.wrap_m > 0; }
 
-// A depth in metres, unwrapped (when the sensor wraps) to the one nearest the expected depth.
-float Unwrapped(float d, float expected, double wrap_m) {
-  if (wrap_m <= 0 || d <= 0) return d;
-  const double k = std::round((expected - d) / wrap_m);
-  return static_cast<float>(d + std::max(0.0, k) * wrap_m);
-}
-
 std::string Describe(const Measurement& m) {
   const Vec3 t = m.T_world_base.translation();
   return fmt::format("fits {} agreement {:.2f} coverage {:.2f} readable {:.2f} support {:.2f} (start {:.2f}{}), pixels: "
@@ -289,7 +282,7 @@ PointCloud Tracker::Impl::DepthPoints(const DepthFrame& f, const ModelView& view
       if (Wraps(f)) {
         // Only where the model predicts a depth can a wrapped one be told apart.
         if (expected <= 0) continue;
-        d = Unwrapped(d, expected, f.wrap_m);
+        d = UnwrappedDepth(d, expected, f.wrap_m);
       }
       // An occluder, as AgreementAt counts one: depth in front of the model's own at this pixel
       // by more than the agreement's tolerance.
@@ -315,7 +308,7 @@ Tracker::Impl::Agreement Tracker::Impl::AgreementAt(const DepthFrame& f, const M
     const int u = static_cast<int>(std::floor(c.fx * q.x() / q.z() + c.cx));
     const int v = static_cast<int>(std::floor(c.fy * q.y() / q.z() + c.cy));
     if (u < 0 || v < 0 || u >= c.width || v >= c.height) continue;
-    const float d = Unwrapped(f.DepthAt(u, v), q.z(), f.wrap_m);
+    const float d = UnwrappedDepth(f.DepthAt(u, v), q.z(), f.wrap_m);
     if (d <= 0) continue;
     const float tol = static_cast<float>(Tolerance(q.z()));
     if (std::abs(d - q.z()) < tol) ++agree;
@@ -347,7 +340,7 @@ bool Tracker::Impl::ExplainedBy(const ModelView& other, const DepthFrame& f, int
   const int gu = std::clamp((u + s / 2) / s, 0, gw - 1), gv = std::clamp((v + s / 2) / s, 0, gh - 1);
   const float z = other.z_depth[static_cast<std::size_t>(gv) * gw + gu];
   if (z <= 0) return false;
-  const float d = Unwrapped(f.DepthAt(u, v), z, f.wrap_m);
+  const float d = UnwrappedDepth(f.DepthAt(u, v), z, f.wrap_m);
   return d > 0 && std::abs(d - z) < Tolerance(z);
 }
 

@@ -2,6 +2,8 @@
 // camera was in the headset's world at exposure and when (the headset's clock).
 #pragma once
 
+#include <algorithm>
+#include <cmath>
 #include <cstdint>
 #include <vector>
 
@@ -22,6 +24,14 @@ struct DepthFrame {
 
   float DepthAt(int u, int v) const { return 0.001f * depth_mm[static_cast<std::size_t>(v) * intrinsics.width + u]; }
 };
+
+// A depth reading in metres, unwrapped (when the sensor wraps: wrap_m > 0) to the alias nearest
+// the expected depth, never nearer than the reading itself; no return (<= 0) stays as it is.
+inline float UnwrappedDepth(float d, float expected, double wrap_m) {
+  if (wrap_m <= 0 || d <= 0) return d;
+  const double k = std::round((expected - d) / wrap_m);
+  return static_cast<float>(d + std::max(0.0, k) * wrap_m);
+}
 
 // The frame is usable: intrinsics valid, one depth per pixel, a finite pose and time.
 Status CheckDepthFrame(const DepthFrame& frame);

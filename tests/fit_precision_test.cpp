@@ -103,7 +103,8 @@ TEST(FitPrecision, TwoSurfaceModelsThatDisagreeAddHalfTheirDifference) {
   const ASSERT_OK_AND_ASSIGN(RobotSurfaceScene c, MakeRobotSurfaceScene());
   const TargetCloud target(c.scene_world);
   auto with_other = [&](const Iso3& T_other) {
-    return MeasurePrecision(c.model_base.points, c.model_base.normals, target, c.T_world_base, {}, &T_other, {});
+    const OtherSurfaceFit other{.T_world_base = T_other};  // even chances
+    return MeasurePrecision(c.model_base.points, c.model_base.normals, target, c.T_world_base, {}, &other, {});
   };
   // The other model's fit 12 mm away along x: the pose lies at either, so 6 mm either way.
   const FitPrecision shifted = with_other(c.T_world_base * MakeYawPose(0.012, 0.0, 0.0, 0.0));
@@ -120,6 +121,21 @@ TEST(FitPrecision, TwoSurfaceModelsThatDisagreeAddHalfTheirDifference) {
   EXPECT_EQ(with_other(c.T_world_base).surface_error_m, 0.0);
   EXPECT_NEAR(shifted.expected_error_m * shifted.expected_error_m,
               shifted.fit_error_m * shifted.fit_error_m + shifted.surface_error_m * shifted.surface_error_m, 1e-12);
+}
+
+// The other model's fit counts by its chance q of being the right one: q (1 - q) of its
+// difference's square, so a model that explains the scene far worse adds little.
+TEST(FitPrecision, TheOtherSurfaceModelCountsByItsChance) {
+  const ASSERT_OK_AND_ASSIGN(RobotSurfaceScene c, MakeRobotSurfaceScene());
+  const TargetCloud target(c.scene_world);
+  auto with_chance = [&](double chance) {
+    const OtherSurfaceFit other{.T_world_base = c.T_world_base * MakeYawPose(0.012, 0.0, 0.0, 0.0), .chance = chance};
+    return MeasurePrecision(c.model_base.points, c.model_base.normals, target, c.T_world_base, {}, &other, {});
+  };
+  EXPECT_NEAR(with_chance(0.1).surface_error_m, 0.012 * 0.3, 1e-9);  // sqrt(0.1 * 0.9) = 0.3
+  EXPECT_NEAR(with_chance(0.9).surface_error_m, 0.012 * 0.3, 1e-9);
+  EXPECT_EQ(with_chance(0.0).surface_error_m, 0.0);
+  EXPECT_NEAR(with_chance(0.5).surface_error_m, 0.006, 1e-9);
 }
 
 TEST(FitPrecision, AFlatSceneCannotPinThePoseAndSaysSo) {

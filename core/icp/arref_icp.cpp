@@ -392,13 +392,17 @@ Result<Candidate> RefineInContext(const ArrefIcpInput& in, int walk, const Targe
 // exact geometry (a CAD scene, a fine scan) by the exact one. The winner is refined with the exact
 // visible surface too, and whichever lies closer to the scene's tangent planes is kept; *other gets
 // the pose the other one gave (how far the choice of model moves the fit: the expected error's
-// surface part, fit_precision.h). Both are polished and compared on the scene sampled densely round
+// surface part, fit_precision.h) and its chance. Each model's chance is taken inversely
+// proportional to its median plane distance: even where both explain the mesh alike (a mesh of
+// another mesher, which neither model is known to match), the other's small where the kept one
+// explains it far better (exact geometry: there the shell's fit lay 23-24 mm from an exact fit
+// under 2 mm off, and even chances said 12-13 mm of expected error; docs/robustness.md). Both are polished and compared on the scene sampled densely round
 // the robot (dense: the refit in context's, else sampled here), as the context's polish is: on
 // the request's sparse samples the exact polish stopped 2-12 mm apart from seed to seed on one
 // noise-free decimated mesh (docs/robustness.md, "The exact polish on the dense scene").
 Result<Candidate> ExactIfCloser(const ArrefIcpInput& in, const PointCloud& expected_fine, const TargetCloud& target,
                                 std::optional<TargetCloud> dense, const Candidate& best, std::vector<std::string>* stages,
-                                Iso3* other) {
+                                OtherSurfaceFit* other) {
   const ArrefIcpParams& p = in.params;
   // Kept by the robot when there is one: no copy per request.
   const auto exact_kept = in.robot ? in.robot->Visible(p.fine_points)
@@ -411,13 +415,16 @@ Result<Candidate> ExactIfCloser(const ArrefIcpInput& in, const PointCloud& expec
   const double d_exact = MedianPlaneDistance(exact_fine, near, exact.T_world_base, 0.03, 0.5);
   spdlog::debug("arref-icp: median plane distance {:.1f} mm expected surface, {:.1f} mm exact", d_expected * 1e3,
                 d_exact * 1e3);
-  if (d_exact < d_expected) {
+  const bool exact_closer = d_exact < d_expected;
+  const double kept = exact_closer ? d_exact : d_expected, rival = exact_closer ? d_expected : d_exact;
+  other->chance = kept + rival > 0 ? kept / (kept + rival) : 0.5;
+  if (exact_closer) {
     stages->push_back("fitted-exact-surface");
-    *other = best.T_world_base;
+    other->T_world_base = best.T_world_base;
     return exact;
   }
   stages->push_back("fitted-expected-surface");
-  *other = exact.T_world_base;
+  other->T_world_base = exact.T_world_base;
   return best;
 }
 
@@ -588,7 +595,7 @@ Result<RegistrationOutput> RegisterArrefIcp(const ArrefIcpInput& in) {
     }
     ARREF_ASSIGN_OR_RETURN(refined.front(),
                            ExactIfCloser(in, *fitted, target, std::move(dense), refined.front(), &out.stages,
-                                         &out.T_world_base_other_surface));
+                                         &out.other_surface));
     out.has_other_surface = true;
     out.step_ms.emplace_back("surface-choice", laps.Lap());
   }
@@ -596,7 +603,7 @@ Result<RegistrationOutput> RegisterArrefIcp(const ArrefIcpInput& in) {
                                        : refined.front().T_world_base;
   // Set on the support, the other surface's fit moves with it: their difference is the models'.
   if (out.has_other_surface)
-    out.T_world_base_other_surface.translation().z() += out.T_world_base.translation().z() - refined.front().T_world_base.translation().z();
+    out.other_surface.T_world_base.translation().z() += out.T_world_base.translation().z() - refined.front().T_world_base.translation().z();
   if (in.robot) {
     out.eyes_world = SeenFrom(EyesOfPath(in.head_path_world, out.T_world_base), walk);
     for (Vec3& eye : out.eyes_world) eye = out.T_world_base * eye;

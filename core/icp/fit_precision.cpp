@@ -2,6 +2,7 @@
 
 #include <Eigen/Cholesky>
 
+#include <algorithm>
 #include <cmath>
 #include <numbers>
 #include <unordered_set>
@@ -70,20 +71,20 @@ Eigen::Matrix4d MapCovariance(const std::vector<Pair>& pairs, const Eigen::Matri
   return C;
 }
 
-// The surface model's part (fit_precision.h): the pose at either fit with equal chance, about
-// their mean: delta delta^T / 4, delta their difference in (x, y, z, yaw).
-Eigen::Matrix4d SurfaceCovariance(const Iso3& T_world_base, const Iso3& T_other) {
-  const Vec3 dt = T_other.translation() - T_world_base.translation();
-  const double yaw = WrapAngle(YawOf(T_other) - YawOf(T_world_base));
+// The surface model's part (fit_precision.h): a pose at one of two fits, about their mean.
+Eigen::Matrix4d SurfaceCovariance(const Iso3& T_world_base, const OtherSurfaceFit& other) {
+  const Vec3 dt = other.T_world_base.translation() - T_world_base.translation();
+  const double yaw = WrapAngle(YawOf(other.T_world_base) - YawOf(T_world_base));
   const Vec4d delta(dt.x(), dt.y(), dt.z(), yaw);
-  return delta * delta.transpose() / 4.0;
+  const double q = std::clamp(other.chance, 0.0, 1.0);
+  return q * (1.0 - q) * delta * delta.transpose();
 }
 
 }  // namespace
 
 FitPrecision MeasurePrecision(std::span<const Vec3f> model_base, std::span<const Vec3f> model_normals_base,
                               const TargetCloud& scene, const Iso3& T_world_base, std::span<const Vec3> eyes_world,
-                              const Iso3* T_world_base_other_surface, const PrecisionSettings& s) {
+                              const OtherSurfaceFit* other_surface, const PrecisionSettings& s) {
   FitPrecision out;
   const bool check_normals = model_normals_base.size() == model_base.size();
   const Eigen::Isometry3f T = T_world_base.cast<float>();
@@ -118,7 +119,7 @@ FitPrecision MeasurePrecision(std::span<const Vec3f> model_base, std::span<const
   auto symmetric = [](const Eigen::Matrix4d& C) -> Eigen::Matrix4d { return 0.5 * (C + C.transpose()); };
   out.fit_covariance = symmetric(variance * dependence * H_inv);
   out.map_covariance = symmetric(MapCovariance(pairs, H_inv, eyes_world, s.view_error));
-  if (T_world_base_other_surface) out.surface_covariance = SurfaceCovariance(T_world_base, *T_world_base_other_surface);
+  if (other_surface) out.surface_covariance = SurfaceCovariance(T_world_base, *other_surface);
   out.residual_rms_m = std::sqrt(sum_sq / static_cast<double>(out.pairs));
   out.expected_error_m = PointError(model_base, T_world_base, out.covariance());
   out.fit_error_m = PointError(model_base, T_world_base, out.fit_covariance);

@@ -124,7 +124,7 @@ FitPrecision Precision(const PointCloud& visible, const TargetCloud& target, con
   constexpr std::size_t kPrecisionPoints = 4000;
   const PointCloud kept = Thinned(visible, kPrecisionPoints);
   return MeasurePrecision(kept.points, kept.normals, target, T_world_base, method.eyes_world,
-                          method.has_other_surface ? &method.T_world_base_other_surface : nullptr,
+                          method.has_other_surface ? &method.other_surface : nullptr,
                           PrecisionSettings{.max_distance_m = options.inlier_threshold_m,
                                             .correlation_m = edge_m,
                                             .view_error = options.arref_icp.tracking_error});

@@ -17,6 +17,7 @@
 #include "arref/base/geometry.h"
 #include "arref/fusion/tracking_error.h"
 #include "arref/icp/fast_icp.h"
+#include "arref/icp/registration_output.h"
 
 namespace arref {
 
@@ -61,10 +62,13 @@ struct FitPrecision {
 //   by t_k + w_k x (p - eye_k). A fused point moves by the mean over the eyes facing it, and the
 //   least-squares fit follows that field: delta = H^-1 J^T (n . dp). Summed over independent
 //   views, Cov = sum_k B_k S B_k^T with S = diag(position^2 I, orientation^2 I).
-// eyes_world: where the surface was seen from; empty: no map part. T_world_base_other_surface:
-// the other surface model's fit; null: no surface part.
+// - The surface model's part: the pose at the kept fit with chance 1 - q, at the other surface
+//   model's fit with chance q, about their mean: q (1 - q) delta delta^T, delta their difference
+//   in (x, y, z, yaw).
+// eyes_world: where the surface was seen from; empty: no map part. other_surface: the other
+// surface model's fit; null: no surface part.
 FitPrecision MeasurePrecision(std::span<const Vec3f> model_base, std::span<const Vec3f> model_normals_base,
                               const TargetCloud& scene, const Iso3& T_world_base, std::span<const Vec3> eyes_world,
-                              const Iso3* T_world_base_other_surface, const PrecisionSettings& settings);
+                              const OtherSurfaceFit* other_surface, const PrecisionSettings& settings);
 
 }  // namespace arref

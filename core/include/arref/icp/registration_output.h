@@ -17,6 +17,13 @@ struct TurnedFit {
   double lead = 0.0;
 };
 
+// arref-icp fits two models of the robot's surface and keeps one: the other's fit, and the chance
+// that it, not the kept one, is where the robot stands.
+struct OtherSurfaceFit {
+  Iso3 T_world_base = Iso3::Identity();
+  double chance = 0.5;
+};
+
 struct RegistrationOutput {
   Iso3 T_world_base = Iso3::Identity();
   int iterations = 0;
@@ -31,9 +38,10 @@ struct RegistrationOutput {
   // the app's head path, or the walk arref-icp chose. Empty: the method does not say.
   std::vector<Vec3> eyes_world;
   // arref-icp fits two models of the robot's surface (the shell it predicts the headset makes,
-  // and the exact visible one) and keeps one: the pose the other gave (when has_other_surface).
+  // and the exact visible one) and keeps one: the pose the other gave and its chance (when
+  // has_other_surface).
   bool has_other_surface = false;
-  Iso3 T_world_base_other_surface = Iso3::Identity();
+  OtherSurfaceFit other_surface;
   std::optional<TurnedFit> turned;  // arref-icp's; none from the other methods
   std::vector<std::pair<std::string, double>> step_ms;  // the method's own steps, in order (profiling)
 };

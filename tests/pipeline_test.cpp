@@ -145,6 +145,40 @@ TEST(RegisterScene, AMapThatDoesNotShowTheRobotAsPosedIsNeverOk) {
   EXPECT_TRUE(capped.T_world_base.isApprox(plain.T_world_base)) << "only the status changes";
 }
 
+// OK promises the product's centimetre: a fit whose own expected error (the map's tracking error
+// over the eyes that saw the robot, the fit's residuals, the surface models' disagreement) is over
+// ConfidenceThresholds::ok_max_expected_error_m is LOW_CONFIDENCE, said why, and keeps its pose.
+TEST(RegisterScene, AFitWhoseExpectedErrorIsOverACentimetreIsNotOk) {
+  ARREF_SHARED_CELL(c);
+  RegistrationOptions options;
+  ASSERT_OK_AND_ASSIGN(const RegistrationReport plain, RegisterScene(*c.side, c.scene_world, c.cell.seeds[0], options));
+  ASSERT_EQ(plain.status, ResultStatus::kOk) << plain.status_reason;
+  ASSERT_TRUE(plain.precision.valid);
+  EXPECT_LT(plain.precision.expected_error_m, options.confidence.ok_max_expected_error_m);
+  EXPECT_FALSE(plain.imprecise_only);
+
+  // The same fit held to a bar just under its own figure: only the status changes.
+  options.confidence.ok_max_expected_error_m = 0.9 * plain.precision.expected_error_m;
+  ASSERT_OK_AND_ASSIGN(const RegistrationReport held, RegisterScene(*c.side, c.scene_world, c.cell.seeds[0], options));
+  EXPECT_EQ(held.status, ResultStatus::kLowConfidence);
+  EXPECT_TRUE(held.imprecise_only);
+  EXPECT_NE(held.status_reason.find("expected error"), std::string::npos) << held.status_reason;
+  EXPECT_TRUE(held.T_world_base.isApprox(plain.T_world_base)) << "only the status changes";
+
+  // A headset tracked three times worse than the default per view (12 mm, 0.9 degrees): its map
+  // alone may put the robot more than a centimetre off, which the figure shows and the status says.
+  options.confidence = ConfidenceThresholds{};
+  options.arref_icp.tracking_error = TrackingError{.position_m = 0.012, .orientation_deg = 0.9};
+  ASSERT_OK_AND_ASSIGN(const RegistrationReport shaky, RegisterScene(*c.side, c.scene_world, c.cell.seeds[0], options));
+  EXPECT_GT(shaky.precision.map_error_m, 2 * plain.precision.map_error_m);
+  EXPECT_GT(shaky.precision.expected_error_m, options.confidence.ok_max_expected_error_m);
+  EXPECT_EQ(shaky.status, ResultStatus::kLowConfidence) << shaky.status_reason;
+  EXPECT_TRUE(shaky.imprecise_only);
+  options.confidence.ok_max_expected_error_m = 0;  // the check off: the fit's other checks pass
+  ASSERT_OK_AND_ASSIGN(const RegistrationReport unchecked, RegisterScene(*c.side, c.scene_world, c.cell.seeds[0], options));
+  EXPECT_EQ(unchecked.status, ResultStatus::kOk) << unchecked.status_reason;
+}
+
 // Users put the cube on the floor at the robot's foot, or at its waist: seeds 0.45 m below and
 // above the base, turned 150 degrees and 0.35 m off, still find it, because the base's height
 // comes from the supports in the crop rather than from the seed.

@@ -80,6 +80,29 @@ TEST(Seedless, FindsBothArmsOfATwoArmRoomAndTheHintPicksThePrimary) {
   EXPECT_LT(Add(room, primary, room.sim.arms[1]), 0.02);
 }
 
+// A real arm whose fit is only too imprecise for an OK (its expected error over the bar) is still
+// an instance: the explanation and distinct-pose checks are for maybes on clutter, and a large
+// arm's true fits explain less of the map round them than those checks ask (docs/seedless.md).
+TEST(Seedless, AnArmFoundButImpreciseIsStillAnInstance) {
+  const Room room = MakeRoom(2, 3);
+  ASSERT_EQ(room.sim.arms.size(), 2u);
+  RegistrationOptions options;
+  options.method = Method::kArrefAuto;
+  options.confidence.ok_max_expected_error_m = 0.001;  // every fit of this map is over it
+  ASSERT_OK_AND_ASSIGN(const WholeMapReport report, RegisterWholeMap(*room.side, room.map, options));
+  EXPECT_EQ(report.status, ResultStatus::kLowConfidence) << report.status_reason;
+  for (const sim::RoomArm& arm : room.sim.arms) {
+    const FoundInstance* nearest = nullptr;
+    double best = 1e9;
+    for (const FoundInstance& f : report.instances)
+      if (const double add = Add(room, f.report.T_world_base, arm); add < best) best = add, nearest = &f;
+    ASSERT_NE(nearest, nullptr);
+    EXPECT_LT(best, 0.02) << "an arm at " << arm.T_world_base.translation().transpose() << " was dropped";
+    EXPECT_TRUE(nearest->report.imprecise_only) << nearest->report.status_reason;
+    EXPECT_NE(nearest->report.status_reason.find("expected error"), std::string::npos) << nearest->report.status_reason;
+  }
+}
+
 TEST(Seedless, ARoomWithoutTheRobotIsFailedWithNoInstanceOk) {
   const Room room = MakeRoom(0, 4);
   RegistrationOptions options;

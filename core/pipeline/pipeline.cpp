@@ -89,6 +89,17 @@ std::string CoarseMeshReason(const ConfidenceThresholds& t, const PointCloud& mo
                      voxel_m * 100, side, across, t.min_voxels_across_robot);
 }
 
+// A fit may stand in the right place and still be too imprecise for the product's promise: its
+// map (head tracking's error per view, over the eyes that saw the robot) or the disagreement of
+// the robot's two surface models can put it more than a centimetre off (docs/engine.md, step 8).
+std::string ImpreciseReason(const ConfidenceThresholds& t, const FitPrecision& p) {
+  if (!(t.ok_max_expected_error_m > 0) || !p.valid || p.expected_error_m <= t.ok_max_expected_error_m) return {};
+  return fmt::format("the pose may be off by more than {:.0f} mm: its expected error is {:.1f} mm (the fit's {:.1f}, "
+                     "the map's {:.1f}, the surface models' {:.1f})",
+                     t.ok_max_expected_error_m * 1e3, p.expected_error_m * 1e3, p.fit_error_m * 1e3,
+                     p.map_error_m * 1e3, p.surface_error_m * 1e3);
+}
+
 // not_as_posed: non-empty when the fit cannot stand for the robot as posed (a model of some of
 // its links, or a map made while it moved): why it is not OK.
 void AssignStatus(const ConfidenceThresholds& t, bool calibrated, const std::string& coarse_mesh,
@@ -109,6 +120,11 @@ void AssignStatus(const ConfidenceThresholds& t, bool calibrated, const std::str
     why = coarse_mesh;
   else if (!not_as_posed.empty())
     why = not_as_posed;
+  r->imprecise_only = false;
+  if (why.empty()) {
+    why = ImpreciseReason(t, r->precision);
+    r->imprecise_only = !why.empty();
+  }
   r->status_reason = why;
   if (why.empty())
     r->status = ResultStatus::kOk;

@@ -244,6 +244,10 @@ Explanation Explain(const PointCloud& map, const PointCloud& model_base, const R
   return e;
 }
 
+// Every check of where the robot stands passed: OK, or LOW_CONFIDENCE only for its expected error.
+// Such a fit is no maybe: the explanation and distinct-pose checks below are for fits that are.
+bool Placed(const RegistrationReport& r) { return r.status == ResultStatus::kOk || r.imprecise_only; }
+
 // The seedless analogue of arref-icp's margin (ConfidenceThresholds::ok_min_margin). A seeded
 // search compares poses round one place the user chose; a room search tries every candidate base,
 // so a fit on clutter somewhere is expected, and an OK must lead the best of those by the same
@@ -253,7 +257,7 @@ Explanation Explain(const PointCloud& map, const PointCloud& model_base, const R
 // A demoted fit becomes LOW_CONFIDENCE and must then explain its place like any other.
 void DemoteOkBelowClutter(std::vector<Result<RegistrationReport>>& fits, const std::vector<Explanation>& explained,
                           double apart, double min_lead) {
-  auto is_ok = [&](std::size_t i) { return fits[i].ok() && fits[i]->status == ResultStatus::kOk; };
+  auto is_ok = [&](std::size_t i) { return fits[i].ok() && Placed(*fits[i]); };
   double clutter = -1;
   for (std::size_t i = 0; i < fits.size(); ++i) {
     if (!fits[i].ok() || is_ok(i)) continue;
@@ -267,16 +271,31 @@ void DemoteOkBelowClutter(std::vector<Result<RegistrationReport>>& fits, const s
   for (std::size_t i = 0; i < fits.size(); ++i) {
     if (!is_ok(i) || fits[i]->score - clutter >= min_lead) continue;
     fits[i]->status = ResultStatus::kLowConfidence;
+    fits[i]->imprecise_only = false;
     fits[i]->status_reason = fmt::format(
         "ambiguous: a fit on other surfaces of the map scores almost as well (score {:.3f} against {:.3f})",
         fits[i]->score, clutter);
   }
 }
 
-int StatusRank(ResultStatus s) { return s == ResultStatus::kOk ? 0 : s == ResultStatus::kLowConfidence ? 1 : 2; }
+// Instances: OK, then placed but imprecise, then maybes, each by score.
+int StatusRank(const RegistrationReport& r) {
+  if (r.status == ResultStatus::kOk) return 0;
+  if (r.imprecise_only) return 1;
+  return r.status == ResultStatus::kLowConfidence ? 2 : 3;
+}
 
 bool Better(const FoundInstance& a, const FoundInstance& b) {
-  if (StatusRank(a.report.status) != StatusRank(b.report.status)) return StatusRank(a.report.status) < StatusRank(b.report.status);
+  if (StatusRank(a.report) != StatusRank(b.report)) return StatusRank(a.report) < StatusRank(b.report);
+  return a.report.score > b.report.score;
+}
+
+// The first tier's fits, whose order picks which of several fits of one arm seeds the second:
+// placed ones by score, whether or not precise (a first-tier fit is refined anyway).
+int SearchRank(const RegistrationReport& r) { return Placed(r) ? 0 : StatusRank(r); }
+
+bool BetterStart(const FoundInstance& a, const FoundInstance& b) {
+  if (SearchRank(a.report) != SearchRank(b.report)) return SearchRank(a.report) < SearchRank(b.report);
   return a.report.score > b.report.score;
 }
 
@@ -288,7 +307,7 @@ int Primary(const std::vector<FoundInstance>& found, const InstanceHint& hint) {
   int best = 0;
   double best_d = std::numeric_limits<double>::max();
   for (std::size_t i = 0; i < found.size(); ++i) {
-    if (found[i].report.status != found.front().report.status) break;  // only among the best status
+    if (StatusRank(found[i].report) != StatusRank(found.front().report)) break;  // only among the best rank
     const double d = (found[i].report.T_world_base.translation() - *at).head<2>().norm();
     if (d < best_d) best_d = d, best = static_cast<int>(i);
   }
@@ -402,7 +421,7 @@ Result<WholeMapReport> AutoSearch(const RobotSide& robot, const TriangleMesh& sc
   }
   out.stages_run.push_back(fmt::format("search-x{}", candidates.size()));
   stages.Start("distinct", 0.7);
-  std::stable_sort(fits.begin(), fits.end(), Better);
+  std::stable_sort(fits.begin(), fits.end(), BetterStart);
   const std::size_t fitted = fits.size();
   const std::string best_reason = fits.empty() ? "" : fits.front().report.status_reason;
   std::vector<FoundInstance> distinct;
@@ -450,11 +469,11 @@ Result<WholeMapReport> AutoSearch(const RobotSide& robot, const TriangleMesh& sc
     // within 20 mm of an arm led by 0.18-0.58 on dev draws 1-3); a small arm laid on boxes fits
     // several poses alike (the MH5's Open3D fits on clutter led by 0.005-0.046 in empty rooms of
     // dev draws 4-13, explaining their place at 0.78-0.83 against bars of 0.76-0.81).
-    if (full[i]->status != ResultStatus::kOk && !e.Holds()) {
+    if (!Placed(*full[i]) && !e.Holds()) {
       ++unexplained;
       continue;
     }
-    if (full[i]->status != ResultStatus::kOk && full[i]->margin < options.confidence.ok_min_margin) {
+    if (!Placed(*full[i]) && full[i]->margin < options.confidence.ok_min_margin) {
       ++ambiguous;
       best_ambiguous_margin = std::max(best_ambiguous_margin, full[i]->margin);
       continue;

@@ -32,6 +32,9 @@ const char* ResultStatusName(ResultStatus status);  // "OK", "LOW_CONFIDENCE", "
 struct RegistrationReport {
   ResultStatus status = ResultStatus::kOk;
   std::string status_reason;        // why it is not OK
+  // LOW_CONFIDENCE only because its expected error is over ConfidenceThresholds::ok_max_expected_error_m:
+  // every check of where the robot stands passed, but not of how precisely.
+  bool imprecise_only = false;
   Iso3 T_world_base = Iso3::Identity();
   Iso3 T_world_seed = Iso3::Identity();
   std::string method;

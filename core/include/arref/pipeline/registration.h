@@ -35,6 +35,11 @@ struct ConfidenceThresholds {
   // A headset mesh with fewer voxels than this across the robot's largest side is not OK: its fused
   // shell leaves a small arm's pose uncertain by more than a centimetre (docs/robustness.md).
   double min_voxels_across_robot = 20.0;
+  // A fit whose own expected error (FitPrecision::expected_error_m, one standard deviation as an
+  // RMS over the robot's points) is over this is not OK: the product promises holograms within a
+  // centimetre, and two such deviations reach the 2 cm at which the bench calls a pose wrong.
+  // 0 turns the check off.
+  double ok_max_expected_error_m = 0.010;
 };
 
 // The seedless method's detection (arref-auto, pipeline/seedless.h).

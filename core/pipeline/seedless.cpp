@@ -285,19 +285,20 @@ int StatusRank(const RegistrationReport& r) {
   return r.status == ResultStatus::kLowConfidence ? 2 : 3;
 }
 
-bool Better(const FoundInstance& a, const FoundInstance& b) {
-  if (StatusRank(a.report) != StatusRank(b.report)) return StatusRank(a.report) < StatusRank(b.report);
+// a before b: the lower rank, then the higher score.
+template <int (*Rank)(const RegistrationReport&)>
+bool RankedBefore(const FoundInstance& a, const FoundInstance& b) {
+  if (Rank(a.report) != Rank(b.report)) return Rank(a.report) < Rank(b.report);
   return a.report.score > b.report.score;
 }
+
+bool Better(const FoundInstance& a, const FoundInstance& b) { return RankedBefore<StatusRank>(a, b); }
 
 // The first tier's fits, whose order picks which of several fits of one arm seeds the second:
 // placed ones by score, whether or not precise (a first-tier fit is refined anyway).
 int SearchRank(const RegistrationReport& r) { return Placed(r) ? 0 : StatusRank(r); }
 
-bool BetterStart(const FoundInstance& a, const FoundInstance& b) {
-  if (SearchRank(a.report) != SearchRank(b.report)) return SearchRank(a.report) < SearchRank(b.report);
-  return a.report.score > b.report.score;
-}
+bool BetterStart(const FoundInstance& a, const FoundInstance& b) { return RankedBefore<SearchRank>(a, b); }
 
 // The primary instance: the OK one nearest the hint (gaze point, else wearer), else the first.
 int Primary(const std::vector<FoundInstance>& found, const InstanceHint& hint) {

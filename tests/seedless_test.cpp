@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <filesystem>
+#include <utility>
 
 #include "arref/fusion/robot_side.h"
 #include "arref/pipeline/seedless.h"
@@ -49,6 +50,14 @@ double Add(const Room& room, const Iso3& T, const sim::RoomArm& arm) {
   return ComparePoses(T, arm.T_world_base, room.side->samples().points).add_m;
 }
 
+// The instance nearest an arm (null when there is none) and its ADD.
+std::pair<const FoundInstance*, double> Nearest(const Room& room, const WholeMapReport& report, const sim::RoomArm& arm) {
+  std::pair<const FoundInstance*, double> nearest{nullptr, 1e9};
+  for (const FoundInstance& f : report.instances)
+    if (const double add = Add(room, f.report.T_world_base, arm); add < nearest.second) nearest = {&f, add};
+  return nearest;
+}
+
 TEST(Seedless, FindsBothArmsOfATwoArmRoomAndTheHintPicksThePrimary) {
   const Room room = MakeRoom(2, 3);
   ASSERT_EQ(room.sim.arms.size(), 2u);
@@ -60,11 +69,9 @@ TEST(Seedless, FindsBothArmsOfATwoArmRoomAndTheHintPicksThePrimary) {
   EXPECT_GT(progress_calls, 3);
   EXPECT_GE(report.candidates, 2);
   ASSERT_GE(report.instances.size(), 2u);
-  for (const sim::RoomArm& arm : room.sim.arms) {
-    double best = 1e9;
-    for (const FoundInstance& f : report.instances) best = std::min(best, Add(room, f.report.T_world_base, arm));
-    EXPECT_LT(best, 0.02) << "an arm at " << arm.T_world_base.translation().transpose() << " was not found";
-  }
+  for (const sim::RoomArm& arm : room.sim.arms)
+    EXPECT_LT(Nearest(room, report, arm).second, 0.02)
+        << "an arm at " << arm.T_world_base.translation().transpose() << " was not found";
   for (const FoundInstance& f : report.instances) {  // each instance says how much of its place it explains
     EXPECT_GT(f.explained, 0.0);
     EXPECT_LE(f.explained, 1.0);
@@ -92,12 +99,9 @@ TEST(Seedless, AnArmFoundButImpreciseIsStillAnInstance) {
   ASSERT_OK_AND_ASSIGN(const WholeMapReport report, RegisterWholeMap(*room.side, room.map, options));
   EXPECT_EQ(report.status, ResultStatus::kLowConfidence) << report.status_reason;
   for (const sim::RoomArm& arm : room.sim.arms) {
-    const FoundInstance* nearest = nullptr;
-    double best = 1e9;
-    for (const FoundInstance& f : report.instances)
-      if (const double add = Add(room, f.report.T_world_base, arm); add < best) best = add, nearest = &f;
+    const auto [nearest, add] = Nearest(room, report, arm);
     ASSERT_NE(nearest, nullptr);
-    EXPECT_LT(best, 0.02) << "an arm at " << arm.T_world_base.translation().transpose() << " was dropped";
+    EXPECT_LT(add, 0.02) << "an arm at " << arm.T_world_base.translation().transpose() << " was dropped";
     EXPECT_TRUE(nearest->report.imprecise_only) << nearest->report.status_reason;
     EXPECT_NE(nearest->report.status_reason.find("expected error"), std::string::npos) << nearest->report.status_reason;
   }

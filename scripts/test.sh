@@ -65,7 +65,8 @@ sanitized_suite() {
   LSAN_OPTIONS="suppressions=$supp/lsan.supp:print_suppressions=0" \
   UBSAN_OPTIONS="$common:suppressions=$supp/ubsan.supp" \
   TSAN_OPTIONS="$common:second_deadlock_stack=1:suppressions=$supp/tsan.supp" \
-    "${pin[@]}" ctest --test-dir "$dir" --output-on-failure -j "$(nproc)" -E '^ros_bridge$' "${ctest_args[@]}" || status=$?
+    "${pin[@]}" ctest --test-dir "$dir" --output-on-failure -j "$(nproc)" \
+      -E "^ros_bridge\$${sanitize_skip:+|$sanitize_skip}" "${ctest_args[@]}" || status=$?
   if compgen -G "$logs/report*" >/dev/null; then
     echo "arref: sanitizer reports in $logs:" >&2
     for f in "$logs"/report*; do echo "== $f" >&2; head -60 "$f" >&2; done
@@ -82,4 +83,16 @@ fi
 bash scripts/build.sh -DARREF_WERROR=$werror
 ctest --test-dir build --output-on-failure -j "$(nproc)" "${ctest_args[@]}"
 bash scripts/fuzz.sh --smoke
-if [[ ${CI:-} == true || ${ARREF_CI_SANITIZE:-} == true ]]; then sanitized_suite address,undefined; fi
+# CI's sanitized pass leaves out the suite's longest numeric runs (20-135 s each here, three times
+# that under ASan): long depth streams of the tracker and the bench's whole quick table. Their
+# code runs under ASan in the shorter tests of the same suites; the plain suite above runs them
+# all. Without this the pass took most of CI's 90 minutes. `--sanitize` alone runs everything.
+ci_sanitize_skip='^(Bench\.QuickRunWritesSaneTables|CliTest\.RegisterRecoversThePoseFromUserLikeSeeds|Tracker\.('
+ci_sanitize_skip+='FusesNoFitOnUnderFourTenthsOfAnArmInWrappedDepth|ConfirmsNoPoseLaidOnHalfTheArmInWrappedDepth|'
+ci_sanitize_skip+='HoldsAnArmHiddenBehindAPropInWrappedDepth|FusesFitsOnAHalfHiddenArmInWrappedDepth|'
+ci_sanitize_skip+='TakesTheCameraViewOfAnArmHiddenByANearOccluder|TakesNoViewThatSlidOffHeadTrackingsGuess|'
+ci_sanitize_skip+='TakesNoUnfittedViewOfAPendingJump|WidensItsToleranceForANoisierSensor|'
+ci_sanitize_skip+='TakesTheCameraViewThatAgreesOnMorePixelsAfterAJump|ReportsAWrappedStreamsNoiseWithoutActingOnIt))$'
+if [[ ${CI:-} == true || ${ARREF_CI_SANITIZE:-} == true ]]; then
+  sanitize_skip=$ci_sanitize_skip sanitized_suite address,undefined
+fi

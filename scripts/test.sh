@@ -3,8 +3,9 @@
 #   scripts/test.sh [--sanitize address,undefined | --sanitize thread] [ctest arguments...]
 # Without --sanitize: the suite in ./build, then a short run of every fuzz target
 # (build-fuzz, clang + libFuzzer, tests/fuzz). In CI (CI=true), or with ARREF_CI_SANITIZE=true,
-# the whole suite then runs once more under AddressSanitizer + UBSan in build-asan (about 35 min
-# more on 2 cores, so a user's run leaves it out). --sanitize LIST builds into its own folder
+# the suite then runs once more under AddressSanitizer + UBSan in build-asan, less its longest
+# numeric runs (ci_sanitize_skip below; about 45 min more on 2 cores with the build, so a user's
+# run leaves it out). --sanitize LIST builds into its own folder
 # (build-asan, build-tsan, ...) with -fsanitize=LIST and runs only the suite there; any
 # sanitizer report fails it.
 set -euo pipefail

@@ -158,6 +158,37 @@ TEST(Bench, QuickRunWritesSaneTables) {
   EXPECT_EQ(ReadCsv(out + "/runs.csv").size(), 32u + 68u + 8u);
 }
 
+// Each mesher's runs fall in rows per whole-centimetre band of the voxel their cell's mesh was
+// fused at, named by runs.csv's voxel_mm: the bands hold every run of the mesher, once. The own
+// mesher fuses every cell alike; Open3D's voxel is drawn per cell in 2-6 cm.
+void ExpectRowsPerVoxelBand(const Table& table, const Table& runs) {
+  for (const char* mesher : {"own", "open3d"}) {
+    std::map<std::string, std::size_t> runs_per_band;
+    for (const auto& run : runs) {
+      if (run.at("experiment") != "robustness" || run.at("params").find(std::string(" ") + mesher + " ") == std::string::npos)
+        continue;
+      const double voxel_mm = Cell(run, "voxel_mm");
+      if (std::string(mesher) == "open3d") {
+        EXPECT_GE(voxel_mm, 20.0) << run.at("params");
+        EXPECT_LE(voxel_mm, 60.0) << run.at("params");
+      }
+      const int cm = static_cast<int>(std::floor(voxel_mm / 10 + 1e-9));
+      ++runs_per_band[std::to_string(cm) + "-" + std::to_string(cm + 1) + " cm"];
+    }
+    ASSERT_FALSE(runs_per_band.empty()) << mesher;
+    std::size_t bands = 0;
+    for (const auto& row : table) {
+      if (row.at("mesher") != mesher || row.at("voxel") == "all") continue;
+      ++bands;
+      EXPECT_EQ(row.at("robot"), "all");
+      EXPECT_EQ(row.at("seeds"), "all");
+      ASSERT_TRUE(runs_per_band.count(row.at("voxel"))) << mesher << ": no run in band " << row.at("voxel");
+      EXPECT_EQ(std::stoul(row.at("runs")), runs_per_band.at(row.at("voxel"))) << mesher << " " << row.at("voxel");
+    }
+    EXPECT_EQ(bands, runs_per_band.size()) << mesher;
+  }
+}
+
 // `arref bench --only robustness --quick`: a row per robot and mesher, per robot, per mesher and
 // per seed family; the dev split leaves the Yaskawa SIA10D out. Run from the source folder, so
 // the default robots are the built-in one and those under ../shared/robots.
@@ -176,7 +207,8 @@ TEST(Bench, RobustnessQuickHasRowsPerRobotAndMesher) {
   else std::cerr << "../shared/robots not found at " << testing::SharedDir() << ": only the built-in robot is checked\n";
   auto find = [&](const std::string& robot, const std::string& mesher, const std::string& seeds) {
     for (const auto& row : t)
-      if (row.at("robot") == robot && row.at("mesher") == mesher && row.at("seeds") == seeds) return &row;
+      if (row.at("robot") == robot && row.at("mesher") == mesher && row.at("seeds") == seeds && row.at("voxel") == "all")
+        return &row;
     return static_cast<const std::map<std::string, std::string>*>(nullptr);
   };
   for (const auto& robot : robots) {
@@ -199,6 +231,7 @@ TEST(Bench, RobustnessQuickHasRowsPerRobotAndMesher) {
   ASSERT_NE(all, nullptr);
   EXPECT_EQ(std::stoul(all->at("runs")), 6 * robots.size());
   EXPECT_GT(Percent(all->at("ADD<=20mm")), 0.0);
+  ExpectRowsPerVoxelBand(t, ReadCsv(out + "/runs.csv"));
 }
 
 // A slender 7-axis arm that is nearly a figure of revolution (tests/robots/column7.urdf, invented

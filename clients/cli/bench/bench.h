@@ -145,6 +145,7 @@ struct Run {
   // The fit's ADD against where the mesh put the robot (SimulatedCell::T_world_base_mesh): the
   // method's own error, the mesh's taken out (-1: not measured).
   double method_error_m = -1;
+  double voxel_m = 0;        // robustness: the voxel the cell's headset mesh was fused at (SimulatedCell::voxel_m)
   FitPrecision precision;    // the result's own (invalid where none was measured)
   std::string stages;        // the result's stages_run, ';'-separated
 };

@@ -8,6 +8,7 @@
 #include <cmath>
 #include <deque>
 #include <functional>
+#include <map>
 #include <numbers>
 
 #include "arref/base/builtin.h"
@@ -57,6 +58,23 @@ RegistrationOptions BaseOptions(const std::string& method, const std::string& si
   o.method = *ParseMethod(method);  // checked by the command
   o.scene_samples = size == "big" ? 256000 : 16000;
   return o;
+}
+
+// A mesh voxel's whole centimetres, and their band ("4-5 cm"): the robustness table's voxel
+// label; "-" for none (a cell without a fused mesh).
+int VoxelCm(double voxel_m) { return static_cast<int>(std::floor(voxel_m * 100 + 1e-9)); }
+std::string VoxelBand(double voxel_m) {
+  return voxel_m > 0 ? fmt::format("{}-{} cm", VoxelCm(voxel_m), VoxelCm(voxel_m) + 1) : "-";
+}
+
+// The voxel bands of one method's runs on one mesher, finest first.
+std::vector<std::string> VoxelBands(const std::vector<Run>& runs, const std::string& method, const std::string& mesher) {
+  std::map<int, std::string> bands;
+  for (const Run& r : runs)
+    if (r.method == method && r.mesher == mesher && r.voxel_m > 0) bands.emplace(VoxelCm(r.voxel_m), VoxelBand(r.voxel_m));
+  std::vector<std::string> out;
+  for (const auto& [cm, band] : bands) out.push_back(band);
+  return out;
 }
 
 Run Label(const std::string& experiment, const std::string& method, const std::string& size, const std::string& params,
@@ -250,6 +268,7 @@ Status RobustnessExperiment(const Config& config, Tables* tables) {
               job.run.robot = robot.label, job.run.mesher = sim::MesherName(mesher);
               job.run.seed_family = sim::SeedFamilyName(family);
               job.run.mesh_error_m = c.sim.mesh_error_add_m;
+              job.run.voxel_m = c.sim.voxel_m;
               job.run.params = fmt::format("{} {} {} seeds", robot.label, job.run.mesher, job.run.seed_family);
               jobs.push_back(job);
             }
@@ -260,13 +279,14 @@ Status RobustnessExperiment(const Config& config, Tables* tables) {
   spdlog::info("bench: robustness ({} split): {} robots, {} cells, {} runs", rc.split, robots->size(), cells.size(), jobs.size());
   const std::vector<Run> runs = Execute(jobs, config.jobs);
   for (const auto& method : rc.methods) {
-    auto add = [&](const std::string& robot, const std::string& mesher, const std::string& family) {
+    auto add = [&](const std::string& robot, const std::string& mesher, const std::string& family,
+                   const std::string& voxel = "all") {
       const auto selected = Select(runs, [&](const Run& r) {
         return r.method == method && (robot == "all" || r.robot == robot) && (mesher == "all" || r.mesher == mesher) &&
-               (family == "all" || r.seed_family == family);
+               (family == "all" || r.seed_family == family) && (voxel == "all" || VoxelBand(r.voxel_m) == voxel);
       });
-      tables->robustness.push_back(Summarise(
-          selected, {{"method", method}, {"split", rc.split}, {"robot", robot}, {"mesher", mesher}, {"seeds", family}}));
+      tables->robustness.push_back(Summarise(selected, {{"method", method}, {"split", rc.split}, {"robot", robot},
+                                                        {"mesher", mesher}, {"seeds", family}, {"voxel", voxel}}));
     };
     for (const auto& robot : *robots)
       for (const auto& mesher : rc.meshers) add(robot.label, mesher, "all");
@@ -275,6 +295,10 @@ Status RobustnessExperiment(const Config& config, Tables* tables) {
     for (const auto& mesher : rc.meshers)
       for (const auto& family : rc.seed_families) add("all", mesher, family);
     add("all", "all", "all");
+    // Per mesher and voxel band, last: a coarse mesh costs the fit most (docs/robustness.md,
+    // "The wrong OK on Open3D's meshes, traced").
+    for (const auto& mesher : rc.meshers)
+      for (const auto& band : VoxelBands(runs, method, mesher)) add("all", mesher, "all", band);
   }
   tables->notes.push_back(fmt::format("robustness: {} split{}, robots {}, {} cell(s) per robot and mesher, {} seed(s) per family",
                                       rc.split,

@@ -108,7 +108,7 @@ Status RunsCsv(const std::string& path, const std::vector<Run>& runs) {
   out << "experiment,method,size,params,scene,cell,seed,perturbation,seed_yaw_deg,offset_x,offset_y,offset_z,ok,status,"
          "rms_mm,add_mm,translation_mm,rotation_deg,crop_ms,sample_ms,mls_ms,register_ms,total_ms,peak_mb,iterations,error,"
          "mesh_error_mm,vertical_mm,horizontal_mm,steps,expected_error_mm,sigma_horizontal_mm,sigma_vertical_mm,"
-         "sigma_yaw_deg,fit_error_mm,map_error_mm,surface_error_mm,stages,method_error_mm\n";
+         "sigma_yaw_deg,fit_error_mm,map_error_mm,surface_error_mm,stages,method_error_mm,voxel_mm\n";
   auto stage = [](const Run& r, const char* s) { return r.stage_ms.count(s) ? Num(r.stage_ms.at(s), 1) : ""; };
   // Every stage and method step ("register/pose-search=12.3;..."), for per-step profiles.
   auto steps = [](const Run& r) {
@@ -124,14 +124,15 @@ Status RunsCsv(const std::string& path, const std::vector<Run>& runs) {
                        Num(p.fit_error_m * 1e3, 2), Num(p.map_error_m * 1e3, 2), Num(p.surface_error_m * 1e3, 2));
   };
   for (const auto& r : runs)
-    out << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", r.experiment, Csv(r.method),
+    out << fmt::format("{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}\n", r.experiment, Csv(r.method),
                        r.size, Csv(r.params), r.scene_kind, r.cell, r.seed, r.perturbation, r.seed_yaw_deg,
                        r.seed_offset_m.x(), r.seed_offset_m.y(), r.seed_offset_m.z(), r.ok ? 1 : 0, r.status, Num(r.rms_m * 1e3, 3),
                        Num(r.add_m * 1e3, 3), Num(r.translation_m * 1e3, 3), Num(r.rotation_deg, 3), stage(r, "crop"),
                        stage(r, "sample"), stage(r, "mls"), stage(r, "register"), Num(r.total_ms, 1), Num(r.peak_mb, 0),
                        r.iterations, Csv(r.error), r.mesh_error_m >= 0 ? Num(r.mesh_error_m * 1e3, 2) : "",
                        Num(r.vertical_m * 1e3, 3), Num(r.horizontal_m * 1e3, 3), Csv(steps(r)), precision(r), Csv(r.stages),
-                       r.method_error_m >= 0 ? Num(r.method_error_m * 1e3, 2) : "");
+                       r.method_error_m >= 0 ? Num(r.method_error_m * 1e3, 2) : "",
+                       r.voxel_m > 0 ? Num(r.voxel_m * 1e3, 1) : "");
   return out ? Status::Ok() : Status::IoError("error writing " + path);
 }
 
@@ -220,7 +221,7 @@ void ProfileTable(std::ostream& md, const Tables& tables, const std::vector<std:
   md << "\n";
 }
 
-const std::vector<std::string> kRobustnessLabels = {"method", "split", "robot", "mesher", "seeds"};
+const std::vector<std::string> kRobustnessLabels = {"method", "split", "robot", "mesher", "seeds", "voxel"};
 
 Status WriteRobustness(const std::string& dir, const Tables& tables, const std::string& command_line) {
   ARREF_RETURN_IF_ERROR(CsvTable(dir + "/robustness.csv", tables.robustness, kRobustnessLabels, RobustnessColumns()));
@@ -235,7 +236,8 @@ Status WriteRobustness(const std::string& dir, const Tables& tables, const std::
         "count as failures); wrong OK = said OK with ADD > 20 mm. Mesh error: the ADD of the gravity-aligned "
         "rigid motion that best explains where the headset's own errors (each view's tracking error as the fusion "
         "averages it, and open3d's per-surface head-pose errors) put the robot's seen surface in the mesh, which no "
-        "fit against the true pose can be expected to beat.\n\n";
+        "fit against the true pose can be expected to beat. Voxel: the rows per mesher and voxel band "
+        "(the voxel each cell's mesh was fused at; open3d draws 2-6 cm per cell).\n\n";
   MarkdownTable(md, tables.robustness, kRobustnessLabels, RobustnessColumns());
   for (const auto& n : tables.notes)
     if (n.rfind("robot: ", 0) != 0) md << "- " << n << "\n";  // --robot is the other experiments' robot

@@ -138,6 +138,30 @@ TEST(FitPrecision, TheOtherSurfaceModelCountsByItsChance) {
   EXPECT_NEAR(with_chance(0.5).surface_error_m, 0.006, 1e-9);
 }
 
+// The kept model's misfit m (its median plane distance from the scene) counts as a horizontal
+// error of m beside the two fits' difference: a shell m off the mesh can hold the fit m off,
+// however many residuals there are.
+TEST(FitPrecision, TheKeptModelsMisfitCountsAsAHorizontalErrorOfItsSize) {
+  const ASSERT_OK_AND_ASSIGN(RobotSurfaceScene c, MakeRobotSurfaceScene());
+  const TargetCloud target(c.scene_world);
+  auto with = [&](double shift_m, double misfit_m) {
+    const OtherSurfaceFit other{.T_world_base = c.T_world_base * MakeYawPose(shift_m, 0.0, 0.0, 0.0), .chance = 0.5,
+                                .kept_misfit_m = misfit_m};
+    return MeasurePrecision(c.model_base.points, c.model_base.normals, target, c.T_world_base, {}, &other, {});
+  };
+  const FitPrecision misfit = with(0.0, 0.007);
+  ASSERT_TRUE(misfit.valid);
+  EXPECT_NEAR(misfit.surface_error_m, 0.007, 1e-9);
+  EXPECT_NEAR(misfit.surface_covariance(0, 0), 0.007 * 0.007 / 2, 1e-12);
+  EXPECT_NEAR(misfit.surface_covariance(1, 1), 0.007 * 0.007 / 2, 1e-12);
+  EXPECT_EQ(misfit.surface_covariance(2, 2), 0.0);  // the support sets the height
+  EXPECT_EQ(misfit.surface_covariance(3, 3), 0.0);
+  // Beside a 12 mm difference at even chances (6 mm), the two add as variances.
+  EXPECT_NEAR(with(0.012, 0.007).surface_error_m, std::hypot(0.006, 0.007), 1e-9);
+  EXPECT_EQ(with(0.0, 0.0).surface_error_m, 0.0);
+  EXPECT_GT(misfit.expected_error_m, misfit.fit_error_m);
+}
+
 TEST(FitPrecision, AFlatSceneCannotPinThePoseAndSaysSo) {
   // A floor patch fitted to a floor: height is pinned, x, y and yaw are not.
   PointCloud patch, floor;

@@ -392,7 +392,7 @@ Result<Candidate> RefineInContext(const ArrefIcpInput& in, int walk, const Targe
 // exact geometry (a CAD scene, a fine scan) by the exact one. The winner is refined with the exact
 // visible surface too, and whichever lies closer to the scene's tangent planes is kept; *other gets
 // the pose the other one gave (how far the choice of model moves the fit: the expected error's
-// surface part, fit_precision.h) and its chance. Each model's chance is taken inversely
+// surface part, fit_precision.h), its chance and the kept one's median plane distance. Each model's chance is taken inversely
 // proportional to its median plane distance: even where both explain the mesh alike (a mesh of
 // another mesher, which neither model is known to match), the other's small where the kept one
 // explains it far better (exact geometry: there the shell's fit lay 23-24 mm from an exact fit
@@ -418,6 +418,7 @@ Result<Candidate> ExactIfCloser(const ArrefIcpInput& in, const PointCloud& expec
   const bool exact_closer = d_exact < d_expected;
   const double kept = exact_closer ? d_exact : d_expected, rival = exact_closer ? d_expected : d_exact;
   other->chance = kept + rival > 0 ? kept / (kept + rival) : 0.5;
+  other->kept_misfit_m = kept;
   if (exact_closer) {
     stages->push_back("fitted-exact-surface");
     other->T_world_base = best.T_world_base;

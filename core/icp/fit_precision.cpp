@@ -71,13 +71,16 @@ Eigen::Matrix4d MapCovariance(const std::vector<Pair>& pairs, const Eigen::Matri
   return C;
 }
 
-// The surface model's part (fit_precision.h): a pose at one of two fits, about their mean.
+// The surface model's part (fit_precision.h): a pose at one of two fits, about their mean, and
+// the kept model's misfit m as a horizontal error of m (m^2 / 2 per horizontal axis).
 Eigen::Matrix4d SurfaceCovariance(const Iso3& T_world_base, const OtherSurfaceFit& other) {
   const Vec3 dt = other.T_world_base.translation() - T_world_base.translation();
   const double yaw = WrapAngle(YawOf(other.T_world_base) - YawOf(T_world_base));
   const Vec4d delta(dt.x(), dt.y(), dt.z(), yaw);
   const double q = std::clamp(other.chance, 0.0, 1.0);
-  return q * (1.0 - q) * delta * delta.transpose();
+  const double misfit_sq = other.kept_misfit_m > 0 ? other.kept_misfit_m * other.kept_misfit_m : 0.0;
+  const Vec4d misfit(misfit_sq / 2, misfit_sq / 2, 0.0, 0.0);
+  return q * (1.0 - q) * delta * delta.transpose() + Eigen::Matrix4d(misfit.asDiagonal());
 }
 
 }  // namespace

@@ -7,7 +7,10 @@
 // - the surface model's: when two models of the robot's surface were fitted (arref-icp's
 //   predicted shell and its exact surface) and one kept, how far apart their fits lie. Neither
 //   is known to be right on a mesh made by another mesher, so the pose is taken to lie at either
-//   with equal chance: a covariance of delta delta^T / 4 for the poses' difference delta.
+//   by its chance: a covariance of q (1 - q) delta delta^T for the poses' difference delta. And
+//   how far the kept model lies off the mesh: a shell that differs from the mesh by a systematic
+//   m (median plane distance) can hold the fit off by about m, which no residual count averages
+//   away, so m counts as a horizontal error of m (the wearer looks at the arm from the side).
 #pragma once
 
 #include <cmath>
@@ -64,7 +67,7 @@ struct FitPrecision {
 //   views, Cov = sum_k B_k S B_k^T with S = diag(position^2 I, orientation^2 I).
 // - The surface model's part: the pose at the kept fit with chance 1 - q, at the other surface
 //   model's fit with chance q, about their mean: q (1 - q) delta delta^T, delta their difference
-//   in (x, y, z, yaw).
+//   in (x, y, z, yaw); plus diag(m^2 / 2, m^2 / 2, 0, 0) for the kept model's misfit m.
 // eyes_world: where the surface was seen from; empty: no map part. other_surface: the other
 // surface model's fit; null: no surface part.
 FitPrecision MeasurePrecision(std::span<const Vec3f> model_base, std::span<const Vec3f> model_normals_base,

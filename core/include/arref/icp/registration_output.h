@@ -17,11 +17,13 @@ struct TurnedFit {
   double lead = 0.0;
 };
 
-// arref-icp fits two models of the robot's surface and keeps one: the other's fit, and the chance
-// that it, not the kept one, is where the robot stands.
+// arref-icp fits two models of the robot's surface and keeps one: the other's fit, the chance
+// that it, not the kept one, is where the robot stands, and how far the kept model lies off the
+// scene (its points' median distance from the scene's tangent planes at the kept fit).
 struct OtherSurfaceFit {
   Iso3 T_world_base = Iso3::Identity();
   double chance = 0.5;
+  double kept_misfit_m = 0.0;
 };
 
 struct RegistrationOutput {

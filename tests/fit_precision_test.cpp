@@ -152,6 +152,7 @@ TEST(FitPrecision, TheKeptModelsMisfitCountsAsAHorizontalErrorOfItsSize) {
   const FitPrecision misfit = with(0.0, 0.007);
   ASSERT_TRUE(misfit.valid);
   EXPECT_NEAR(misfit.surface_error_m, 0.007, 1e-9);
+  EXPECT_EQ(misfit.surface_misfit_m, 0.007);
   EXPECT_NEAR(misfit.surface_covariance(0, 0), 0.007 * 0.007 / 2, 1e-12);
   EXPECT_NEAR(misfit.surface_covariance(1, 1), 0.007 * 0.007 / 2, 1e-12);
   EXPECT_EQ(misfit.surface_covariance(2, 2), 0.0);  // the support sets the height

@@ -1,6 +1,7 @@
 // RegisterScene in process on a simulated small cell (the built-in KR5): both overloads against
 // the simulator's ground truth, the pipeline's errors, the RobotSide cache, every registered
 // method, and cancellation (before the call, and from another thread while it runs).
+#include <fmt/format.h>
 #include <gtest/gtest.h>
 
 #include <algorithm>
@@ -163,6 +164,13 @@ TEST(RegisterScene, AFitWhoseExpectedErrorIsOverACentimetreIsNotOk) {
   EXPECT_EQ(held.status, ResultStatus::kLowConfidence);
   EXPECT_TRUE(held.imprecise_only);
   EXPECT_NE(held.status_reason.find("expected error"), std::string::npos) << held.status_reason;
+  // arref-icp fitted two surface models: the reason says how far the kept one lies off the mesh.
+  ASSERT_GT(held.precision.surface_misfit_m, 0.0);
+  EXPECT_LE(held.precision.surface_misfit_m, held.precision.surface_error_m);
+  EXPECT_NE(held.status_reason.find(fmt::format("surface model lies {:.1f} mm off the mesh",
+                                                held.precision.surface_misfit_m * 1e3)),
+            std::string::npos)
+      << held.status_reason;
   EXPECT_TRUE(held.T_world_base.isApprox(plain.T_world_base)) << "only the status changes";
 
   // A headset tracked three times worse than the default per view (12 mm, 0.9 degrees): its map

@@ -121,7 +121,8 @@ nlohmann::json ReportJson(const RegistrationReport& r, FrameConvention frame) {
   j["inlier_fraction"] = r.inlier_fraction;
   if (r.precision.valid)
     j["expected_error_m"] = {{"total", r.precision.expected_error_m}, {"fit", r.precision.fit_error_m},
-                             {"map", r.precision.map_error_m}, {"surface", r.precision.surface_error_m}};
+                             {"map", r.precision.map_error_m}, {"surface", r.precision.surface_error_m},
+                             {"surface_misfit", r.precision.surface_misfit_m}};
   j["iterations"] = r.iterations;
   j["converged"] = r.converged;
   j["points"] = {{"scene_triangles", r.scene_triangles}, {"scene", r.scene_points}, {"model", r.model_points}};

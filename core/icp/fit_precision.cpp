@@ -122,7 +122,10 @@ FitPrecision MeasurePrecision(std::span<const Vec3f> model_base, std::span<const
   auto symmetric = [](const Eigen::Matrix4d& C) -> Eigen::Matrix4d { return 0.5 * (C + C.transpose()); };
   out.fit_covariance = symmetric(variance * dependence * H_inv);
   out.map_covariance = symmetric(MapCovariance(pairs, H_inv, eyes_world, s.view_error));
-  if (other_surface) out.surface_covariance = SurfaceCovariance(T_world_base, *other_surface);
+  if (other_surface) {
+    out.surface_covariance = SurfaceCovariance(T_world_base, *other_surface);
+    out.surface_misfit_m = std::max(other_surface->kept_misfit_m, 0.0);
+  }
   out.residual_rms_m = std::sqrt(sum_sq / static_cast<double>(out.pairs));
   out.expected_error_m = PointError(model_base, T_world_base, out.covariance());
   out.fit_error_m = PointError(model_base, T_world_base, out.fit_covariance);

@@ -94,10 +94,14 @@ std::string CoarseMeshReason(const ConfidenceThresholds& t, const PointCloud& mo
 // the robot's two surface models can put it more than a centimetre off (docs/engine.md, step 8).
 std::string ImpreciseReason(const ConfidenceThresholds& t, const FitPrecision& p) {
   if (!(t.ok_max_expected_error_m > 0) || !p.valid || p.expected_error_m <= t.ok_max_expected_error_m) return {};
+  const std::string misfit =
+      p.surface_misfit_m > 0
+          ? fmt::format("; the robot's surface model lies {:.1f} mm off the mesh in median", p.surface_misfit_m * 1e3)
+          : std::string();
   return fmt::format("the pose may be off by more than {:.0f} mm: its expected error is {:.1f} mm (the fit's {:.1f}, "
-                     "the map's {:.1f}, the surface models' {:.1f})",
+                     "the map's {:.1f}, the surface models' {:.1f}){}",
                      t.ok_max_expected_error_m * 1e3, p.expected_error_m * 1e3, p.fit_error_m * 1e3,
-                     p.map_error_m * 1e3, p.surface_error_m * 1e3);
+                     p.map_error_m * 1e3, p.surface_error_m * 1e3, misfit);
 }
 
 // not_as_posed: non-empty when the fit cannot stand for the robot as posed (a model of some of

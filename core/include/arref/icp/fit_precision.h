@@ -51,6 +51,9 @@ struct FitPrecision {
   double fit_error_m = 0.0;  // the same of each part alone
   double map_error_m = 0.0;
   double surface_error_m = 0.0;
+  // The kept surface model's misfit (OtherSurfaceFit::kept_misfit_m), part of surface_error_m;
+  // 0 with one model. What a status reason names when the mesh is not what the model expected.
+  double surface_misfit_m = 0.0;
   double residual_rms_m = 0.0;
   std::size_t pairs = 0;
   std::size_t independent_pairs = 0;  // pairs counted by correlation cells

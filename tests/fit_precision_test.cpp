@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <limits>
 #include <numbers>
 #include <random>
 #include <vector>
@@ -161,6 +162,12 @@ TEST(FitPrecision, TheKeptModelsMisfitCountsAsAHorizontalErrorOfItsSize) {
   EXPECT_NEAR(with(0.012, 0.007).surface_error_m, std::hypot(0.006, 0.007), 1e-9);
   EXPECT_EQ(with(0.0, 0.0).surface_error_m, 0.0);
   EXPECT_GT(misfit.expected_error_m, misfit.fit_error_m);
+  // No model point near the scene (MedianPlaneDistance's infinity) is no misfit measured, not an
+  // infinite figure.
+  const FitPrecision unmeasured = with(0.0, std::numeric_limits<double>::infinity());
+  EXPECT_EQ(unmeasured.surface_misfit_m, 0.0);
+  EXPECT_EQ(unmeasured.surface_error_m, 0.0);
+  EXPECT_TRUE(std::isfinite(unmeasured.expected_error_m));
 }
 
 TEST(FitPrecision, AFlatSceneCannotPinThePoseAndSaysSo) {

@@ -392,11 +392,12 @@ Result<Candidate> RefineInContext(const ArrefIcpInput& in, int walk, const Targe
 // exact geometry (a CAD scene, a fine scan) by the exact one. The winner is refined with the exact
 // visible surface too, and whichever lies closer to the scene's tangent planes is kept; *other gets
 // the pose the other one gave (how far the choice of model moves the fit: the expected error's
-// surface part, fit_precision.h), its chance and the kept one's median plane distance. Each model's chance is taken inversely
-// proportional to its median plane distance: even where both explain the mesh alike (a mesh of
-// another mesher, which neither model is known to match), the other's small where the kept one
-// explains it far better (exact geometry: there the shell's fit lay 23-24 mm from an exact fit
-// under 0.1 mm off, and even chances said 12-13 mm of expected error; docs/robustness.md).
+// surface part, fit_precision.h), its chance and the kept one's median plane distance. Each
+// model's chance is taken inversely proportional to its median plane distance: even where both
+// explain the mesh alike (a mesh of another mesher, which neither model is known to match), the
+// other's small where the kept one explains it far better (exact geometry: there the shell's fit
+// lay 23-24 mm from an exact fit under 0.1 mm off, and even chances said 12-13 mm of expected
+// error; docs/robustness.md).
 // Both are polished and compared on the scene sampled densely round the robot (dense: the refit
 // in context's, else sampled here), as the context's polish is: on the request's sparse samples
 // the exact polish stopped 2-12 mm apart from seed to seed on one noise-free decimated mesh (docs/robustness.md, "The exact polish on the dense scene").

@@ -71,6 +71,12 @@ Eigen::Matrix4d MapCovariance(const std::vector<Pair>& pairs, const Eigen::Matri
   return C;
 }
 
+// The kept model's misfit as a length: 0 where none was measured (MedianPlaneDistance's infinity
+// when no point of the model lay near the scene, or a negative value).
+double KeptMisfit(const OtherSurfaceFit& other) {
+  return std::isfinite(other.kept_misfit_m) && other.kept_misfit_m > 0 ? other.kept_misfit_m : 0.0;
+}
+
 // The surface model's part (fit_precision.h): a pose at one of two fits, about their mean, and
 // the kept model's misfit m as a horizontal error of m (m^2 / 2 per horizontal axis).
 Eigen::Matrix4d SurfaceCovariance(const Iso3& T_world_base, const OtherSurfaceFit& other) {
@@ -78,8 +84,8 @@ Eigen::Matrix4d SurfaceCovariance(const Iso3& T_world_base, const OtherSurfaceFi
   const double yaw = WrapAngle(YawOf(other.T_world_base) - YawOf(T_world_base));
   const Vec4d delta(dt.x(), dt.y(), dt.z(), yaw);
   const double q = std::clamp(other.chance, 0.0, 1.0);
-  const double misfit_sq = other.kept_misfit_m > 0 ? other.kept_misfit_m * other.kept_misfit_m : 0.0;
-  const Vec4d misfit(misfit_sq / 2, misfit_sq / 2, 0.0, 0.0);
+  const double m = KeptMisfit(other);
+  const Vec4d misfit(m * m / 2, m * m / 2, 0.0, 0.0);
   return q * (1.0 - q) * delta * delta.transpose() + Eigen::Matrix4d(misfit.asDiagonal());
 }
 
@@ -124,7 +130,7 @@ FitPrecision MeasurePrecision(std::span<const Vec3f> model_base, std::span<const
   out.map_covariance = symmetric(MapCovariance(pairs, H_inv, eyes_world, s.view_error));
   if (other_surface) {
     out.surface_covariance = SurfaceCovariance(T_world_base, *other_surface);
-    out.surface_misfit_m = std::max(other_surface->kept_misfit_m, 0.0);
+    out.surface_misfit_m = KeptMisfit(*other_surface);
   }
   out.residual_rms_m = std::sqrt(sum_sq / static_cast<double>(out.pairs));
   out.expected_error_m = PointError(model_base, T_world_base, out.covariance());

@@ -90,8 +90,9 @@ std::string CoarseMeshReason(const ConfidenceThresholds& t, const PointCloud& mo
 }
 
 // A fit may stand in the right place and still be too imprecise for the product's promise: its
-// map (head tracking's error per view, over the eyes that saw the robot) or the disagreement of
-// the robot's two surface models can put it more than a centimetre off (docs/engine.md, step 8).
+// map (head tracking's error per view, over the eyes that saw the robot), the disagreement of
+// the robot's two surface models, or the kept model lying off the mesh can put it more than a
+// centimetre off (docs/engine.md, steps 8 and 9); the reason names the last when there is one.
 std::string ImpreciseReason(const ConfidenceThresholds& t, const FitPrecision& p) {
   if (!(t.ok_max_expected_error_m > 0) || !p.valid || p.expected_error_m <= t.ok_max_expected_error_m) return {};
   const std::string misfit =

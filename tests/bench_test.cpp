@@ -290,6 +290,40 @@ TEST(Bench, RobustnessWithPedestalsStandsArmsOnThem) {
   EXPECT_EQ(Percent(all->at("ADD<=20mm")), 100.0) << "every base found on its pedestal or floor";
 }
 
+// `--robust-own-voxels`: each own-mesher cell is fused at a voxel of its own, drawn in 2-6 cm as the
+// Open3D device's; without it every one is fused at the 3.46 cm of 1,000 triangles per m^3. The
+// runs carry the voxel they were fitted at, and the report says how the cells were made.
+TEST(Bench, RobustnessCanFuseTheOwnMeshersCellsAtVoxelsOfTheirOwn) {
+  for (const bool drawn : {false, true}) {
+    SCOPED_TRACE(drawn ? "--robust-own-voxels" : "the default voxel");
+    const std::string out = ::testing::TempDir() + "/arref_bench_own_voxels";
+    std::filesystem::remove_all(out);
+    const auto r = testing::RunCommand(std::string(ARREF_BINARY_DIR) +
+                                       "/clients/cli/arref bench --only robustness --robots builtin --meshers own "
+                                       "--seed-families user --robust-cells 3 --robust-seeds 1 " +
+                                       (drawn ? "--robust-own-voxels " : "") + "--out " + out);
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    const Table runs = ReadCsv(out + "/runs.csv");
+    ASSERT_EQ(runs.size(), 3u);
+    std::vector<double> voxels_mm;
+    for (const auto& run : runs) voxels_mm.push_back(Number(run.at("voxel_mm"), "a run's voxel"));
+    for (const double v : voxels_mm) {
+      if (drawn) {
+        EXPECT_GE(v, 20.0);
+        EXPECT_LE(v, 60.0);
+      } else {
+        EXPECT_NEAR(v, 34.6, 0.1) << "sqrt(2 x 0.6 m^2 per m^3 / 1,000 triangles per m^3)";
+      }
+    }
+    std::sort(voxels_mm.begin(), voxels_mm.end());
+    EXPECT_EQ(std::unique(voxels_mm.begin(), voxels_mm.end()) - voxels_mm.begin(), drawn ? 3 : 1)
+        << "one voxel per cell when drawn";
+    std::ifstream md(out + "/robustness.md");
+    const std::string report((std::istreambuf_iterator<char>(md)), std::istreambuf_iterator<char>());
+    EXPECT_EQ(report.find("own mesher at voxels of 2-6 cm") != std::string::npos, drawn);
+  }
+}
+
 // `--head-path`: each robustness request carries where the cell's wearer walked (as the mock
 // headset and a HoloLens app send it), and arref-icp's refit fuses the robot from those eyes;
 // without it no request has a path and the refit assumes a walk.

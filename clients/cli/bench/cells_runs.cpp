@@ -204,6 +204,13 @@ Status SetCellRobotSide(const RobotModel& robot, const std::string& moving_fit, 
   return Status::Ok();
 }
 
+// The own mesher's voxel for RobustnessConfig::own_voxels: uniform in 2-6 cm, the range of the
+// Open3D device's, from a stream of the cell's own so that the rest of the cell is drawn as without it.
+double DrawOwnVoxel(std::uint64_t seed) {
+  std::mt19937_64 rng(SplitMix64(seed ^ 0x564F58u));
+  return std::uniform_real_distribution<double>(0.02, 0.06)(rng);
+}
+
 }  // namespace
 
 Result<Cell> MakeCell(const RobotModel& robot, const std::string& kind, int index, std::uint64_t seed, sim::Mesher mesher,
@@ -218,6 +225,7 @@ Result<Cell> MakeCell(const RobotModel& robot, const std::string& kind, int inde
   }
   options->seed_count = 0;  // the experiment draws its seeds by family
   options->fusion.mesher = mesher;
+  if (rc.own_voxels && mesher == sim::Mesher::kOwn) options->fusion.voxel_m = DrawOwnVoxel(seed);
   ARREF_RETURN_IF_ERROR(sim::LeaveOutErrors(rc.without, seed, &*options));
   auto sim = sim::SimulateCell(robot, *options, seed);
   if (!sim.ok()) return sim.status().WithContext("bench cell " + kind + " " + std::to_string(index) + " of " + robot.name());
@@ -226,8 +234,9 @@ Result<Cell> MakeCell(const RobotModel& robot, const std::string& kind, int inde
   for (auto& s : cell.sim.surfaces) ARREF_RETURN_IF_ERROR(map.Upsert(s));
   cell.scene_world = *map.MergedWorld();
   if (!cell.robot) ARREF_RETURN_IF_ERROR(SetCellRobotSide(robot, rc.moving_fit, &cell));
-  spdlog::info("bench: {} cell '{}' #{} ({} mesher): {} triangles, pedestal {:.2f} m", robot.name(), kind, index,
-               sim::MesherName(mesher), cell.scene_world.triangles.size(), options->cell.pedestal_height_m);
+  spdlog::info("bench: {} cell '{}' #{} ({} mesher): {} triangles, voxel {:.3f} m, pedestal {:.2f} m", robot.name(), kind,
+               index, sim::MesherName(mesher), cell.scene_world.triangles.size(), cell.sim.voxel_m,
+               options->cell.pedestal_height_m);
   if (mesher == sim::Mesher::kOpen3d) {
     const sim::DeviceVariation& d = cell.sim.device;
     spdlog::info("bench:   device: voxel {:.3f} m, {:.0f} triangles/m^3, quantum {:.4f} m, {:.2f} m surfaces at {} times, "

@@ -305,6 +305,7 @@ Status RobustnessExperiment(const Config& config, Tables* tables) {
                                       (rc.motion == "none" ? std::string()
                                                            : fmt::format(" (joints moving while mapping: {}; fit: {})", rc.motion, rc.moving_fit)) +
                                           (rc.pedestals ? " (arms on pedestals)" : "") +
+                                          (rc.own_voxels ? " (own mesher at voxels of 2-6 cm)" : "") +
                                           (config.head_path ? " (each request sends the wearer's path)" : ""),
                                       fmt::join([&] {
                                         std::vector<std::string> names;

@@ -4,6 +4,8 @@
 
 #include <algorithm>
 #include <filesystem>
+#include <limits>
+#include <vector>
 #include <utility>
 
 #include "arref/fusion/robot_side.h"
@@ -105,6 +107,37 @@ TEST(Seedless, AnArmFoundButImpreciseIsStillAnInstance) {
     EXPECT_TRUE(nearest->report.imprecise_only) << nearest->report.status_reason;
     EXPECT_NE(nearest->report.status_reason.find("expected error"), std::string::npos) << nearest->report.status_reason;
   }
+}
+
+// The instances' order: OK fits first by score; of two placed but imprecise fits, the smaller
+// expected error first whatever their scores (a fit over the map's flat parts can hold more of the
+// model, as the MH5's farther-off instance did in a dev room, docs/seedless.md); an unmeasured
+// expected error last among them; LOW_CONFIDENCE fits that are not placed by score, after both.
+TEST(Seedless, InstancesRankOkByScoreAndImpreciseFitsByExpectedError) {
+  auto instance = [](ResultStatus status, bool imprecise_only, double score, double expected_m) {
+    FoundInstance f;
+    f.report.status = status;
+    f.report.imprecise_only = imprecise_only;
+    f.report.score = score;
+    f.report.precision.expected_error_m = expected_m;
+    return f;
+  };
+  const double nan = std::numeric_limits<double>::quiet_NaN();
+  std::vector<FoundInstance> found = {
+      instance(ResultStatus::kLowConfidence, false, 0.90, 0.005),  // 0: not placed
+      instance(ResultStatus::kLowConfidence, true, 0.80, 0.016),   // 1: imprecise, better scored
+      instance(ResultStatus::kLowConfidence, true, 0.60, 0.012),   // 2: imprecise, better placed
+      instance(ResultStatus::kOk, false, 0.50, 0.009),             // 3
+      instance(ResultStatus::kLowConfidence, true, 0.95, nan),     // 4: imprecise, unmeasured
+      instance(ResultStatus::kOk, false, 0.70, 0.004),             // 5
+      instance(ResultStatus::kLowConfidence, false, 0.40, 0.003),  // 6: not placed
+  };
+  for (std::size_t i = 0; i < found.size(); ++i) found[i].detection_score = static_cast<double>(i);
+  std::stable_sort(found.begin(), found.end(), RanksBefore);
+  std::vector<int> order;
+  for (const auto& f : found) order.push_back(static_cast<int>(f.detection_score));
+  EXPECT_EQ(order, (std::vector<int>{5, 3, 2, 1, 4, 0, 6}));
+  EXPECT_FALSE(RanksBefore(found[2], found[2])) << "irreflexive";
 }
 
 TEST(Seedless, ARoomWithoutTheRobotIsFailedWithNoInstanceOk) {

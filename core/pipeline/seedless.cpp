@@ -278,7 +278,7 @@ void DemoteOkBelowClutter(std::vector<Result<RegistrationReport>>& fits, const s
   }
 }
 
-// Instances: OK, then placed but imprecise, then maybes, each by score.
+// Instances: OK, then placed but imprecise, then maybes (RanksBefore orders them within a tier).
 int StatusRank(const RegistrationReport& r) {
   if (r.status == ResultStatus::kOk) return 0;
   if (r.imprecise_only) return 1;
@@ -291,8 +291,6 @@ bool RankedBefore(const FoundInstance& a, const FoundInstance& b) {
   if (Rank(a.report) != Rank(b.report)) return Rank(a.report) < Rank(b.report);
   return a.report.score > b.report.score;
 }
-
-bool Better(const FoundInstance& a, const FoundInstance& b) { return RankedBefore<StatusRank>(a, b); }
 
 // The first tier's fits, whose order picks which of several fits of one arm seeds the second:
 // placed ones by score, whether or not precise (a first-tier fit is refined anyway).
@@ -316,7 +314,7 @@ int Primary(const std::vector<FoundInstance>& found, const InstanceHint& hint) {
 }
 
 void Finish(const InstanceHint& hint, WholeMapReport* out) {
-  std::stable_sort(out->instances.begin(), out->instances.end(), Better);
+  std::stable_sort(out->instances.begin(), out->instances.end(), RanksBefore);
   out->primary = Primary(out->instances, hint);
   if (out->primary < 0) {
     out->status = ResultStatus::kFailed;
@@ -535,6 +533,19 @@ Result<WholeMapReport> WholeMapOnce(const RobotSide& robot, const TriangleMesh& 
 }
 
 }  // namespace
+
+// Two placed but imprecise fits both lie on the map (they passed every other test), and a fit
+// over the map's flat parts can hold more of the model within 2 cm than a better placed one: the
+// score ranks how much lies on the map, the expected error how well it is placed.
+bool RanksBefore(const FoundInstance& a, const FoundInstance& b) {
+  // An unmeasured (non-finite) figure counts as the largest: a NaN would break the sort's order.
+  auto expected = [](const FoundInstance& f) {
+    const double e = f.report.precision.expected_error_m;
+    return std::isfinite(e) ? e : std::numeric_limits<double>::infinity();
+  };
+  if (a.report.imprecise_only && b.report.imprecise_only && expected(a) != expected(b)) return expected(a) < expected(b);
+  return RankedBefore<StatusRank>(a, b);
+}
 
 double WholeMapReport::total_ms() const {
   double total = 0;

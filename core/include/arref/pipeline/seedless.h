@@ -34,7 +34,7 @@ struct WholeMapReport {
   ResultStatus status = ResultStatus::kFailed;  // the primary instance's; FAILED when none was found
   std::string status_reason;
   std::string method;
-  std::vector<FoundInstance> instances;  // ranked: OK first, then by score; never two within the robot's footprint
+  std::vector<FoundInstance> instances;  // ranked by RanksBefore; never two within the robot's footprint
   int primary = -1;                      // index into instances, -1: none
   std::vector<std::string> stages_run;
   std::vector<StageTime> timings;        // the whole-map stages (each candidate's own are in its report)
@@ -42,6 +42,11 @@ struct WholeMapReport {
   int candidates = 0;                    // candidate bases the detection proposed
   double total_ms() const;
 };
+
+// The order of WholeMapReport::instances: OK fits, then fits placed but imprecise, then the rest
+// (LOW_CONFIDENCE, then FAILED); within a tier by score, except that of two imprecise fits the one
+// with the smaller expected error (FitPrecision::expected_error_m) comes first.
+bool RanksBefore(const FoundInstance& a, const FoundInstance& b);
 
 // Registers the robot against the whole map with options.method: arref-auto (the default here),
 // sliding-box-shot, or any seeded method run from the map's centre over all of it.

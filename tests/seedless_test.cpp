@@ -5,8 +5,8 @@
 #include <algorithm>
 #include <filesystem>
 #include <limits>
-#include <vector>
 #include <utility>
+#include <vector>
 
 #include "arref/fusion/robot_side.h"
 #include "arref/pipeline/seedless.h"

@@ -30,6 +30,12 @@ std::vector<std::string> SplitCsvLine(const std::string& line) {
   return cells;
 }
 
+// A report the bench wrote, whole.
+std::string ReadText(const std::string& path) {
+  std::ifstream in(path);
+  return {std::istreambuf_iterator<char>(in), std::istreambuf_iterator<char>()};
+}
+
 Table ReadCsv(const std::string& path) {
   std::ifstream in(path);
   std::string line;
@@ -280,8 +286,7 @@ TEST(Bench, RobustnessWithPedestalsStandsArmsOnThem) {
   EXPECT_EQ(on_floor + on_pedestal, 6) << log;
   EXPECT_GT(on_pedestal, 0);
   EXPECT_GT(on_floor, 0);
-  std::ifstream md(out + "/robustness.md");
-  const std::string report((std::istreambuf_iterator<char>(md)), std::istreambuf_iterator<char>());
+  const std::string report = ReadText(out + "/robustness.md");
   EXPECT_NE(report.find("arms on pedestals"), std::string::npos);
   const Table t = ReadCsv(out + "/robustness.csv");
   const auto* all = Find(t, "robot", "all", "mesher", "all");
@@ -318,8 +323,7 @@ TEST(Bench, RobustnessCanFuseTheOwnMeshersCellsAtVoxelsOfTheirOwn) {
     std::sort(voxels_mm.begin(), voxels_mm.end());
     EXPECT_EQ(std::unique(voxels_mm.begin(), voxels_mm.end()) - voxels_mm.begin(), drawn ? 3 : 1)
         << "one voxel per cell when drawn";
-    std::ifstream md(out + "/robustness.md");
-    const std::string report((std::istreambuf_iterator<char>(md)), std::istreambuf_iterator<char>());
+    const std::string report = ReadText(out + "/robustness.md");
     EXPECT_EQ(report.find("own mesher at voxels of 2-6 cm") != std::string::npos, drawn);
   }
 }
@@ -381,8 +385,7 @@ TEST(Bench, AutoMeasuresEachArmsMeshErrorAndTheFitFromItsTruth) {
       EXPECT_LE(method_mm, 20.0);
     }
     EXPECT_EQ(arms, 2);
-    std::ifstream md(out + "/auto.md");
-    const std::string report((std::istreambuf_iterator<char>(md)), std::istreambuf_iterator<char>());
+    const std::string report = ReadText(out + "/auto.md");
     EXPECT_NE(report.find("The mesh's error or the method's?"), std::string::npos);
     EXPECT_NE(report.find("true pose (a diagnostic)"), std::string::npos);
     EXPECT_EQ(report.find("taken out of every room") != std::string::npos, !jitter);
